@@ -1,0 +1,99 @@
+//! Waypoint sequencing for the closed-loop scenarios: the active waypoint
+//! advances when the believed position comes within `reach_radius` of it.
+
+use serde::{Deserialize, Serialize};
+
+/// Settings of a waypoint route.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RouteConfig {
+    /// Waypoints as (x, y) positions, visited in order.
+    pub waypoints: Vec<[f64; 2]>,
+    /// Distance at which a waypoint counts as reached.
+    pub reach_radius: f64,
+    /// Start again at the first waypoint after the last.
+    #[serde(default = "default_true")]
+    pub cycle: bool,
+}
+
+fn default_true() -> bool {
+    true
+}
+
+/// Tracks progress along a route.
+#[derive(Clone, Debug)]
+pub struct WaypointTracker {
+    cfg: RouteConfig,
+    active: usize,
+    reached: u64,
+    finished: bool,
+}
+
+impl WaypointTracker {
+    /// A tracker at the first waypoint. The route must not be empty.
+    pub fn new(cfg: RouteConfig) -> Self {
+        assert!(
+            !cfg.waypoints.is_empty(),
+            "a route needs at least one waypoint"
+        );
+        Self {
+            cfg,
+            active: 0,
+            reached: 0,
+            finished: false,
+        }
+    }
+
+    /// The active waypoint.
+    pub fn goal(&self) -> [f64; 2] {
+        self.cfg.waypoints[self.active]
+    }
+
+    /// Number of waypoints reached so far.
+    pub fn reached(&self) -> u64 {
+        self.reached
+    }
+
+    /// Distance from `pos` to the active waypoint.
+    pub fn distance(&self, pos: [f64; 2]) -> f64 {
+        let g = self.goal();
+        (pos[0] - g[0]).hypot(pos[1] - g[1])
+    }
+
+    /// Advance if `pos` reached the active waypoint; returns true on a switch.
+    pub fn update(&mut self, pos: [f64; 2]) -> bool {
+        if self.finished || self.distance(pos) > self.cfg.reach_radius {
+            return false;
+        }
+        self.reached += 1;
+        if self.active + 1 < self.cfg.waypoints.len() {
+            self.active += 1;
+        } else if self.cfg.cycle {
+            self.active = 0;
+        } else {
+            self.finished = true;
+            return false;
+        }
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn advances_and_cycles() {
+        let mut t = WaypointTracker::new(RouteConfig {
+            waypoints: vec![[0.0, 0.0], [3.0, 0.0]],
+            reach_radius: 0.5,
+            cycle: true,
+        });
+        assert!(!t.update([1.0, 0.0]));
+        assert!(t.update([0.2, 0.1]));
+        assert_eq!(t.goal(), [3.0, 0.0]);
+        assert!(t.update([2.9, 0.0]));
+        assert_eq!(t.goal(), [0.0, 0.0]);
+        assert_eq!(t.reached(), 2);
+    }
+}

@@ -1,0 +1,55 @@
+//! Reproductions of the reference papers' tables, driven by
+//! `beliefbus experiment <name> [--runs N] [--seed S] [--json FILE]`.
+//!
+//! Every experiment returns an [`ExperimentReport`]: our rows next to the
+//! paper's rows, in the experiment JSON of DESIGN.md
+//! (`{"experiment", "params", "results": [{"method", <metric>...}], "paper": [...]}`),
+//! and prints the same numbers as a table.
+
+pub mod report;
+
+pub use report::{ExperimentReport, Progress, Row};
+
+/// Options shared by all experiments.
+#[derive(Clone, Debug)]
+pub struct ExperimentArgs {
+    /// Monte-Carlo repetitions (None: the experiment's default, usually the
+    /// paper's).
+    pub runs: Option<usize>,
+    /// Base seed; repetition i uses stream i of it.
+    pub seed: u64,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+    /// Extra `key=value` parameters (experiment specific, validated by it).
+    pub params: Vec<(String, String)>,
+}
+
+impl Default for ExperimentArgs {
+    fn default() -> Self {
+        Self {
+            runs: None,
+            seed: 1,
+            progress: false,
+            params: Vec::new(),
+        }
+    }
+}
+
+/// An experiment: its name, one line of description and its entry point.
+pub struct Experiment {
+    pub name: &'static str,
+    pub about: &'static str,
+    pub run: fn(&ExperimentArgs) -> anyhow::Result<ExperimentReport>,
+}
+
+/// Every experiment, in the order `beliefbus experiment --list` shows them.
+pub fn all() -> Vec<Experiment> {
+    vec![
+        // Each issue registers its experiments here.
+    ]
+}
+
+/// Find an experiment by name.
+pub fn find(name: &str) -> Option<Experiment> {
+    all().into_iter().find(|e| e.name == name)
+}
