@@ -10,6 +10,9 @@
 //! Backends: bootstrap particle filter, EKF, UKF, Kalman (exact reference
 //! on linear models), and the Markov-chain filter of thesis ch. 3.
 
+pub mod gauss;
+pub mod kalman;
+
 use crate::belief::Gaussian;
 use crate::model::{Dims, Measurement};
 
