@@ -12,6 +12,7 @@
 
 pub mod gauss;
 pub mod kalman;
+pub mod resample;
 
 use crate::belief::Gaussian;
 use crate::model::{Dims, Measurement};
