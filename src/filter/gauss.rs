@@ -198,6 +198,17 @@ pub fn check_prior(prior: &Gaussian, d: usize) -> Result<(), FilterError> {
         .map_err(|_| FilterError::Numerical("prior covariance is not positive semi-definite"))
 }
 
+/// The lower factor L of a prior's covariance (L Lᵀ = P, semi-definite
+/// allowed), for drawing samples m + L ξ.
+pub(crate) fn prior_factor(prior: &Gaussian) -> Result<Mat, FilterError> {
+    let d = prior.dim;
+    let mut l: Mat = [0.0; MAX_STATE * MAX_STATE];
+    l[..d * d].copy_from_slice(prior.cov());
+    cholesky_psd(&mut l, d)
+        .map_err(|_| FilterError::Numerical("prior covariance is not positive semi-definite"))?;
+    Ok(l)
+}
+
 /// Masked Joseph-form update of (mean, cov) of dimension d.
 ///
 /// `h` is the full m × d observation matrix (Jacobian), `r` the full

@@ -10,8 +10,10 @@
 //! Backends: bootstrap particle filter, EKF, UKF, Kalman (exact reference
 //! on linear models), and the Markov-chain filter of thesis ch. 3.
 
+pub mod build;
 pub mod gauss;
 pub mod kalman;
+pub mod pf;
 pub mod resample;
 
 use crate::belief::Gaussian;
