@@ -169,11 +169,12 @@ pub(crate) fn chol_log_det(l: &[f64], n: usize) -> f64 {
     (0..n).map(|i| 2.0 * l[i + i * n].ln()).sum()
 }
 
-/// Whether the symmetric n × n matrix is positive definite (and finite).
-pub(crate) fn is_pd(p: &[f64], n: usize) -> bool {
+/// Whether the symmetric n × n matrix is finite and positive
+/// semi-definite (pivots down to −1e-9 of its scale count as zero).
+pub(crate) fn is_psd(p: &[f64], n: usize) -> bool {
     let mut l: Mat = [0.0; MAX_STATE * MAX_STATE];
     l[..n * n].copy_from_slice(&p[..n * n]);
-    p[..n * n].iter().all(|v| v.is_finite()) && cholesky(&mut l, n).is_ok()
+    p[..n * n].iter().all(|v| v.is_finite()) && cholesky_psd(&mut l, n).is_ok()
 }
 
 /// Check a prior for a model of state dimension `d`: right dimension,
@@ -305,9 +306,9 @@ pub(crate) fn masked_joseph_update(
         }
     }
     symmetrize(&mut new_cov, d);
-    if !new_mean[..d].iter().all(|v| v.is_finite()) || !is_pd(&new_cov, d) {
+    if !new_mean[..d].iter().all(|v| v.is_finite()) || !is_psd(&new_cov, d) {
         return Err(FilterError::Numerical(
-            "updated covariance is not positive definite",
+            "updated covariance is not positive semi-definite",
         ));
     }
     mean[..d].copy_from_slice(&new_mean[..d]);
