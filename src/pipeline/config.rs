@@ -15,6 +15,7 @@
 
 use super::scenario::{AnyModel, Scenario};
 use crate::control::cost::DiscBarrier;
+use crate::control::mppi::MppiConfig;
 use crate::control::waypoints::RouteConfig;
 use crate::filter::ekf::EkfConfig;
 use crate::filter::pf::PfConfig;
@@ -211,6 +212,8 @@ pub struct FilterConfig {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ControlBackend {
+    /// Model-predictive path-integral control.
+    Mppi,
     /// No controller: the control stage only consumes beliefs.
     None,
 }
@@ -218,6 +221,7 @@ pub enum ControlBackend {
 impl ControlBackend {
     pub fn name(self) -> &'static str {
         match self {
+            ControlBackend::Mppi => "mppi",
             ControlBackend::None => "none",
         }
     }
@@ -246,6 +250,8 @@ pub struct ControlConfig {
     pub route: Option<RouteConfig>,
     #[serde(default)]
     pub cost: Option<CostConfig>,
+    #[serde(default)]
+    pub mppi: MppiConfig,
 }
 
 /// `[refine]`: the anytime chain refinement (issue 4 fills it in).
@@ -395,7 +401,12 @@ pub fn load_str(text: &str, overrides: &[String]) -> Result<PipelineConfig, Conf
     let mut table: toml::Table = toml::from_str(text).map_err(|e| {
         let line = e
             .span()
-            .map(|s| format!("line {}: ", text[..s.start.min(text.len())].lines().count().max(1)))
+            .map(|s| {
+                format!(
+                    "line {}: ",
+                    text[..s.start.min(text.len())].lines().count().max(1)
+                )
+            })
             .unwrap_or_default();
         ConfigError::new("", format!("{line}{}", e.message()))
     })?;
@@ -414,7 +425,10 @@ pub fn apply_override(table: &mut toml::Table, kv: &str) -> Result<(), ConfigErr
     let value = value.trim();
     let parts: Vec<&str> = key.split('.').collect();
     if key.is_empty() || parts.iter().any(|p| p.is_empty()) {
-        return Err(ConfigError::new(key, "--set needs a dotted KEY such as filter.backend"));
+        return Err(ConfigError::new(
+            key,
+            "--set needs a dotted KEY such as filter.backend",
+        ));
     }
     let parsed: toml::Value = match toml::from_str::<toml::Table>(&format!("v = {value}")) {
         Ok(mut t) => t.remove("v").unwrap_or(toml::Value::String(value.into())),
@@ -488,7 +502,10 @@ fn positive(key: &str, v: f64) -> Result<(), ConfigError> {
     if v.is_finite() && v > 0.0 {
         Ok(())
     } else {
-        Err(ConfigError::new(key, format!("must be positive and finite, got {v}")))
+        Err(ConfigError::new(
+            key,
+            format!("must be positive and finite, got {v}"),
+        ))
     }
 }
 
@@ -511,6 +528,14 @@ fn len_is(key: &str, v: &[f64], n: usize, what: &str) -> Result<(), ConfigError>
 }
 
 impl PipelineConfig {
+    /// Where the stages meet: `run.prefix` and `run.instance`.
+    pub fn bus(&self) -> crate::ipc::BusConfig {
+        crate::ipc::BusConfig {
+            prefix: self.run.prefix.clone(),
+            instance: self.run.instance.clone(),
+        }
+    }
+
     /// Sensor sample period (s).
     pub fn sample_dt(&self) -> f64 {
         1.0 / self.plant.sensor_rate_hz
@@ -583,7 +608,12 @@ impl PipelineConfig {
         }
         let model = self.model()?;
         let dims = model.dims();
-        len_is("plant.initial_state", &p.initial_state, dims.state, "state dimension")?;
+        len_is(
+            "plant.initial_state",
+            &p.initial_state,
+            dims.state,
+            "state dimension",
+        )?;
         finite_all("plant.initial_state", &p.initial_state)?;
 
         positive("ingest.max_age_s", self.ingest.max_age_s)?;
@@ -599,7 +629,10 @@ impl PipelineConfig {
             if let Some(&bad) = c.components.iter().find(|&&k| k >= dims.obs) {
                 return Err(ConfigError::new(
                     format!("{key}.components"),
-                    format!("component {bad} is outside the observation (dimension {})", dims.obs),
+                    format!(
+                        "component {bad} is outside the observation (dimension {})",
+                        dims.obs
+                    ),
                 ));
             }
             positive(&format!("{key}.max_rate_hz"), c.max_rate_hz)?;
@@ -612,8 +645,18 @@ impl PipelineConfig {
         }
 
         let f = &self.filter;
-        len_is("filter.prior_mean", &f.prior_mean, dims.state, "state dimension")?;
-        len_is("filter.prior_std", &f.prior_std, dims.state, "state dimension")?;
+        len_is(
+            "filter.prior_mean",
+            &f.prior_mean,
+            dims.state,
+            "state dimension",
+        )?;
+        len_is(
+            "filter.prior_std",
+            &f.prior_std,
+            dims.state,
+            "state dimension",
+        )?;
         finite_all("filter.prior_mean", &f.prior_mean)?;
         for (i, s) in f.prior_std.iter().enumerate() {
             if !(s.is_finite() && *s > 0.0) {
@@ -623,8 +666,7 @@ impl PipelineConfig {
                 ));
             }
         }
-        f.pf
-            .validate()
+        f.pf.validate()
             .map_err(|e| ConfigError::new(format!("filter.pf.{}", e.key), e.problem))?;
         f.ekf
             .validate()
@@ -638,9 +680,7 @@ impl PipelineConfig {
         for kind in StageKind::ALL {
             let s = self.stages.get(kind);
             let key = format!("stages.{}", kind.name());
-            s.rt()
-                .validate()
-                .map_err(|e| ConfigError::new(&key, e))?;
+            s.rt().validate().map_err(|e| ConfigError::new(&key, e))?;
             if let Some(c) = s.core {
                 if c >= cores {
                     return Err(ConfigError::new(
@@ -676,7 +716,10 @@ impl PipelineConfig {
             .as_ref()
             .ok_or_else(|| ConfigError::new("control.route", "is required by this backend"))?;
         if route.waypoints.is_empty() {
-            return Err(ConfigError::new("control.route.waypoints", "needs at least one waypoint"));
+            return Err(ConfigError::new(
+                "control.route.waypoints",
+                "needs at least one waypoint",
+            ));
         }
         positive("control.route.reach_radius", route.reach_radius)?;
         let cost = c
@@ -692,11 +735,20 @@ impl PipelineConfig {
         }
         if let Some(b) = &cost.barrier {
             if b.axes.0 >= dims.state || b.axes.1 >= dims.state || b.axes.0 == b.axes.1 {
-                return Err(ConfigError::new("control.cost.barrier.axes", "must be two distinct state components"));
+                return Err(ConfigError::new(
+                    "control.cost.barrier.axes",
+                    "must be two distinct state components",
+                ));
             }
             positive("control.cost.barrier.radius", b.radius)?;
         }
-        Ok(())
+        match c.backend {
+            ControlBackend::Mppi => c
+                .mppi
+                .validate(dims.control)
+                .map_err(|e| ConfigError::new(format!("control.mppi.{}", e.key), e.problem)),
+            ControlBackend::None => Ok(()),
+        }
     }
 }
 

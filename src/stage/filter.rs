@@ -9,7 +9,9 @@
 //! counted by reason: a refused prediction publishes nothing, a refused
 //! update publishes the prediction flagged `UPDATE_REFUSED`.
 
-use super::{guarded, secs_since, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort};
+use super::{
+    guarded, secs_since, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort,
+};
 use crate::belief::Gaussian;
 use crate::filter::ekf::Ekf;
 use crate::filter::pf::Pf;

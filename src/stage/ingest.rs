@@ -158,7 +158,11 @@ impl Validator {
         if s.values[..n].iter().any(|v| !v.is_finite()) {
             return Err(Reason::NonFinite);
         }
-        if s.has_noise_std() && s.noise_std[..n].iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+        if s.has_noise_std()
+            && s.noise_std[..n]
+                .iter()
+                .any(|v| !(v.is_finite() && *v > 0.0))
+        {
             return Err(Reason::Invalid);
         }
         if s.t_meas_ns == 0 || s.t_meas_ns > now_ns.saturating_add(self.max_age_ns) {

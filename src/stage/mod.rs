@@ -17,12 +17,14 @@ pub mod ingest;
 pub mod plant;
 pub mod refine;
 
+use crate::ipc::BusConfig;
 use crate::ipc::{
-    stats_flags, Bus, Hop, HopStats, IpcError, Publisher, StageKind, StageStats, Trace,
-    STATS_HOPS, STATS_REASONS,
+    stats_flags, Bus, Hop, HopStats, IpcError, Publisher, StageKind, StageStats, Trace, STATS_HOPS,
+    STATS_REASONS,
 };
-use crate::pipeline::ConfigError;
-use crate::rt::{Budget, LatencyHist, RtApplied};
+use crate::pipeline::{ConfigError, PipelineConfig};
+use crate::rt::{Budget, Clock, LatencyHist, RtApplied};
+use std::sync::atomic::AtomicBool;
 
 /// Why a stage stopped abnormally.
 #[derive(Debug, thiserror::Error)]
@@ -236,7 +238,12 @@ impl StatsPort {
     }
 
     /// Publish now; `last` marks the final report.
-    pub fn publish(&mut self, m: &Metrics, now_ns: u64, last: bool) -> Result<StageStats, IpcError> {
+    pub fn publish(
+        &mut self,
+        m: &Metrics,
+        now_ns: u64,
+        last: bool,
+    ) -> Result<StageStats, IpcError> {
         let mut s = m.to_stats(&self.id);
         s.header.seq = self.seq;
         s.header.t_valid_ns = now_ns;
@@ -265,6 +272,28 @@ pub fn secs_since(epoch_ns: u64, t_ns: u64) -> f64 {
     (t_ns as i128 - epoch_ns as i128) as f64 * 1e-9
 }
 
+/// Join the pipeline on `bus` as `id.kind`, open that stage's ports and run
+/// its loop until `stop` (what a stage executable does after applying its
+/// rt settings; tests call it on threads).
+pub fn run_stage(
+    bus: &BusConfig,
+    cfg: &PipelineConfig,
+    id: StageIdentity,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+) -> Result<StageStats, StageError> {
+    let b = Bus::open(bus, id.kind.name())?;
+    match id.kind {
+        StageKind::Ingest => ingest::run(ingest::IngestPorts::open(&b, id, cfg)?, cfg, clock, stop),
+        StageKind::Filter => filter::run(filter::FilterPorts::open(&b, id, cfg)?, cfg, clock, stop),
+        StageKind::Control => {
+            control::run(control::ControlPorts::open(&b, id, cfg)?, cfg, clock, stop)
+        }
+        StageKind::Refine => refine::run(refine::RefinePorts::open(&b, id, cfg)?, cfg, clock, stop),
+        StageKind::Plant => plant::run(plant::PlantPorts::open(&b, id, cfg)?, cfg, clock, stop),
+    }
+}
+
 /// Run one step of a loop body; an error is stored in `err` and ends the
 /// loop.
 pub fn guarded(
@@ -281,7 +310,7 @@ pub fn guarded(
 }
 
 /// Read the stop flag.
-pub fn stopped(stop: &std::sync::atomic::AtomicBool) -> bool {
+pub fn stopped(stop: &AtomicBool) -> bool {
     stop.load(std::sync::atomic::Ordering::Relaxed)
 }
 

@@ -23,7 +23,7 @@ use crate::{MAX_CONTROL, MAX_OBS, MAX_STATE};
 use std::sync::atomic::AtomicBool;
 
 /// RNG stream id of the plant (mixed with `run.seed`).
-pub const PLANT_STREAM: u64 = 0x504C_414E_54; // "PLANT"
+pub const PLANT_STREAM: u64 = 0x0050_4C41_4E54; // "PLANT"
 /// Controls buffered between two ticks.
 const CONTROL_BUFFER: usize = 16;
 /// A plant this many periods late skips ahead instead of catching up
@@ -187,7 +187,9 @@ pub fn run_for(
         // publish time (zero-order hold).
         let mut n = 0;
         while n < CONTROL_BUFFER {
-            let Some(c) = ports.control.receive()? else { break };
+            let Some(c) = ports.control.receive()? else {
+                break;
+            };
             pending[n] = c;
             n += 1;
         }

@@ -43,7 +43,10 @@ fn a_valid_config_loads_with_defaults_filled_in() {
 
 #[test]
 fn unknown_keys_are_named_with_their_path() {
-    let e = err(&format!("{BASE}\n[refine]\nperiod_ms = 5\nbogus = 1\n"), &[]);
+    let e = err(
+        &format!("{BASE}\n[refine]\nperiod_ms = 5\nbogus = 1\n"),
+        &[],
+    );
     assert_eq!(e.key, "refine.bogus", "{e}");
     assert!(e.problem.contains("unknown field"), "{e}");
     let e = err(BASE, &["filter.pf.particlez=3"]);
@@ -109,4 +112,3 @@ fn syntax_errors_name_the_line() {
     assert_eq!(e.key, "");
     assert!(e.problem.starts_with("line 3"), "{e}");
 }
-
