@@ -4,7 +4,11 @@
 //! statistics and the truth, and the report.
 
 pub mod config;
+pub mod launcher;
+pub mod monitor;
+pub mod report;
 pub mod scenario;
+pub mod stage_main;
 
 pub use config::{ConfigError, PipelineConfig};
 pub use scenario::{AnyModel, Scenario};
