@@ -191,6 +191,15 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
     }
     let prefix = cleanup::run_prefix();
     cfg.run.prefix = prefix.clone();
+    if !opts.quiet {
+        eprintln!(
+            "beliefbus: {} ({} Hz, filter {}, control {}) under shared-memory prefix {prefix}",
+            cfg.run.scenario.name(),
+            cfg.plant.sensor_rate_hz,
+            cfg.filter.backend.name(),
+            cfg.control.backend.name()
+        );
+    }
     let result = supervise(&cfg, opts, &prefix, stop);
     // Whatever happened, leave nothing behind.
     let cleaned = cleanup::remove_prefix(&prefix);
