@@ -55,6 +55,7 @@ pub struct Chain {
     ids: Vec<u32>,
     holding: Vec<f64>,
     radius: Vec<f64>,
+    near_count: Vec<u32>,
     trans: Transitions,
     // per-state caches
     drift: Vec<f64>,
@@ -93,6 +94,7 @@ impl Chain {
             ids: vec![],
             holding: vec![],
             radius: vec![],
+            near_count: vec![],
             trans: Transitions::default(),
             drift: vec![],
             drift_norm: vec![],
@@ -155,6 +157,7 @@ impl Chain {
         self.ids.reserve(extra);
         self.holding.reserve(extra);
         self.radius.reserve(extra);
+        self.near_count.reserve(extra);
         self.drift.reserve(extra * d);
         self.drift_norm.reserve(extra);
         self.diff_norm.reserve(extra);
@@ -251,6 +254,7 @@ impl Chain {
         self.next_id += 1;
         self.holding.push(f64::INFINITY);
         self.radius.push(0.0);
+        self.near_count.push(0);
         self.drift.extend_from_slice(&f[..d]);
         self.drift_norm
             .push(f[..d].iter().map(|v| v * v).sum::<f64>().sqrt());
@@ -322,6 +326,7 @@ impl Chain {
         };
         self.stats.connects += 1;
         self.radius[i] = r;
+        self.near_count[i] = self.neigh.len() as u32;
         let (fnorm, dnorm) = (self.drift_norm[i], self.diff_norm[i]);
         if self.neigh.is_empty() || !(r > 0.0) || (fnorm == 0.0 && dnorm == 0.0) {
             // No neighbour, or no dynamics at z: absorbing.
@@ -416,6 +421,11 @@ impl Chain {
         c.next_id = view.ids.iter().max().map_or(0, |m| m + 1);
         c.holding.copy_from_slice(view.holding);
         c.radius.copy_from_slice(view.radius);
+        for i in 0..n {
+            // Near-set sizes are not part of a snapshot; the row length is
+            // the best available proxy.
+            c.near_count[i] = view.row_offsets[i + 1] - view.row_offsets[i];
+        }
         c.trans = super::storage::Transitions::from_csr(view.row_offsets, view.cols, view.probs);
         c.index =
             SpatialIndex::from_points(c.dim, view.states).ok_or(ChainError::Dimension(c.dim))?;
@@ -497,6 +507,17 @@ impl Chain {
     /// Near radius used at the last connection, by slot.
     pub fn radius(&self) -> &[f64] {
         &self.radius
+    }
+    /// Size of the Near set at the last connection, by slot.
+    pub fn near_count(&self) -> &[u32] {
+        &self.near_count
+    }
+    /// Volume represented by slot i, the k-NN density estimate
+    /// r(z)^d / |Near(z)| (up to the unit-ball constant); used to turn
+    /// densities into masses on non-uniformly sampled states.
+    pub fn cell_volume(&self, i: usize) -> f64 {
+        let k = self.near_count[i].max(1) as f64;
+        self.radius[i].powi(self.dim as i32) / k
     }
     /// Transition row of slot i.
     pub fn row(&self, i: usize) -> (&[u32], &[f64]) {
