@@ -11,6 +11,7 @@
 //! on linear models), and the Markov-chain filter of thesis ch. 3.
 
 pub mod build;
+pub mod chain_filter;
 pub mod ekf;
 pub mod gauss;
 pub mod kalman;
