@@ -226,13 +226,16 @@ impl PropagationKernel {
     pub fn forward(&self, phi: &[f64], out: &mut [f64]) {
         let n = self.n;
         assert!(phi.len() >= n && out.len() >= n);
+        let phi = &phi[..n];
         for z in 0..n {
             let s = self.in_off[z] as usize;
             let e = self.in_off[z + 1] as usize;
             let mut acc = self.stay[z] * phi[z];
             for (w, &src) in self.in_w[s..e].iter().zip(&self.in_src[s..e]) {
-                // Every src < n by construction (validated view columns).
-                acc += w * phi[src as usize];
+                // SAFETY: `rebuild` writes only row indices i < n into
+                // `in_src` (it enumerates the rows of a view with n rows),
+                // and `phi` has length n.
+                acc += w * unsafe { *phi.get_unchecked(src as usize) };
             }
             out[z] = acc;
         }
