@@ -141,3 +141,65 @@ pub fn report(chain: &Chain, bounds: &Bounds, margin: f64) -> ConsistencyReport 
         mean_out_degree: chain.mean_out_degree(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::chain::{ChainConfig, Sampler};
+    use crate::model::linear::LinearSde;
+    use crate::model::SdeModel;
+    use nalgebra::DMatrix;
+
+    fn ou(s: f64) -> LinearSde {
+        LinearSde::new(
+            "ou2",
+            DMatrix::from_row_slice(2, 2, &[-0.5, 0.0, 0.0, -1.0]),
+            DMatrix::zeros(2, 0),
+            DMatrix::from_row_slice(2, 2, &[s, 0.0, 0.0, s]),
+            DMatrix::identity(2, 2),
+            vec![0.1, 0.1],
+            Bounds::new_box(&[-1.0, -1.0], &[1.0, 1.0]).unwrap(),
+        )
+    }
+
+    #[test]
+    fn local_consistency_errors_decrease_with_n_on_the_ou_model() {
+        let m = ou(0.3);
+        let mut last = (f64::INFINITY, f64::INFINITY);
+        for n in [1000usize, 4000, 16000] {
+            let mut rng = crate::rng::stream(7, n as u64);
+            let c = Chain::sample_batch(
+                &m,
+                ChainConfig::moment_matched(2),
+                &Sampler::Uniform,
+                n,
+                &mut rng,
+            )
+            .unwrap();
+            let r = report(&c, m.bounds(), 1.0);
+            assert!(r.used > n / 2);
+            assert!(
+                r.rel_drift_err < last.0 && r.rel_cov_err < last.1,
+                "n={n}: {r:?} vs {last:?}"
+            );
+            last = (r.rel_drift_err, r.rel_cov_err);
+        }
+        assert!(last.0 < 0.01 && last.1 < 0.05, "{last:?}");
+    }
+
+    #[test]
+    fn thesis_gaussian_kernel_underestimates_covariance_at_every_n() {
+        // The erratum documented in `kernel`: with Δt = r²/(‖FFᵀ‖ + r‖f‖)
+        // the kernel is truncated at one standard deviation by Near, so the
+        // covariance error stays O(1) instead of vanishing.
+        let m = ou(0.3);
+        for n in [1000usize, 16000] {
+            let mut rng = crate::rng::stream(8, n as u64);
+            let c =
+                Chain::sample_batch(&m, ChainConfig::gaussian(2), &Sampler::Uniform, n, &mut rng)
+                    .unwrap();
+            let r = report(&c, m.bounds(), 1.0);
+            assert!(r.rel_cov_err > 0.5, "n={n}: {r:?}");
+        }
+    }
+}

@@ -217,6 +217,10 @@ impl PropagationKernel {
     pub fn stay(&self) -> &[f64] {
         &self.stay
     }
+    /// Incoming edges as CSR: (offsets n + 1, source slots, p^δ weights).
+    pub fn incoming(&self) -> (&[u32], &[u32], &[f64]) {
+        (&self.in_off, &self.in_src, &self.in_w)
+    }
     /// Whether the backward (row) orientation is stored.
     pub fn has_backward(&self) -> bool {
         self.backward

@@ -343,8 +343,94 @@ impl<M: SdeModel> ChainFilter<M> {
     }
 }
 
+/// The prior N(mean, cov) as a mass function on the chain's states:
+/// φ(z) ∝ N(z; mean, cov) · vol(z) (see the module doc). A singular
+/// covariance puts all mass on the state nearest the mean. `scratch` has
+/// the length of `out` (= chain.len()).
+pub fn prior_weights(chain: &Chain, prior: &Gaussian, out: &mut [f64], scratch: &mut [f64]) {
+    let d = chain.dim();
+    let n = chain.len();
+    let mut l = [0.0; MAX_STATE * MAX_STATE];
+    l[..d * d].copy_from_slice(prior.cov());
+    if !cholesky(&mut l[..d * d], d) {
+        let mut near = Vec::with_capacity(1);
+        chain.nearest(prior.mean(), 1, &mut near);
+        out.fill(0.0);
+        if let Some(&(j, _)) = near.first() {
+            out[j as usize] = 1.0;
+        }
+        return;
+    }
+    let mut lmax = f64::NEG_INFINITY;
+    for i in 0..n {
+        let z = chain.state(i);
+        let mut y = [0.0; MAX_STATE];
+        for a in 0..d {
+            y[a] = z[a] - prior.mean[a];
+        }
+        forward_sub(&l[..d * d], d, &mut y[..d]);
+        let q: f64 = y[..d].iter().map(|v| v * v).sum();
+        let lw = -0.5 * q + chain.cell_volume(i).max(1e-300).ln();
+        scratch[i] = lw;
+        lmax = lmax.max(lw);
+    }
+    for i in 0..n {
+        out[i] = (scratch[i] - lmax).exp();
+    }
+    normalise(out);
+}
+
+/// log p(y | z) up to the constant Σ(−log σ_i − ½ log 2π), for every state
+/// from its precomputed observation mean (`obs_mean`, n × m), into `out`.
+/// Returns the maximum.
+pub fn log_likelihoods<M: SdeModel>(
+    model: &M,
+    obs_mean: &[f64],
+    meas: &Measurement,
+    out: &mut [f64],
+) -> f64 {
+    let m = model.dims().obs;
+    let mut std = [0.0; MAX_OBS];
+    match meas.std {
+        Some(s) => std[..m].copy_from_slice(&s[..m]),
+        None => model.obs_std(&mut std[..m]),
+    }
+    let mut idx = [0usize; MAX_OBS];
+    let mut inv_var = [0.0; MAX_OBS];
+    let mut nm = 0;
+    for i in meas.mask.iter().take_while(|&i| i < m) {
+        idx[nm] = i;
+        inv_var[nm] = 1.0 / (std[i] * std[i]);
+        nm += 1;
+    }
+    let mut r = [0.0; MAX_OBS];
+    let mut lmax = f64::NEG_INFINITY;
+    for (z, o) in out.iter_mut().enumerate() {
+        model.obs_residual(&meas.y[..m], &obs_mean[z * m..(z + 1) * m], &mut r[..m]);
+        let mut q = 0.0;
+        for j in 0..nm {
+            let ri = r[idx[j]];
+            q += ri * ri * inv_var[j];
+        }
+        *o = -0.5 * q;
+        lmax = lmax.max(*o);
+    }
+    lmax
+}
+
+/// Observation means g(z) of every state, n × m.
+pub fn observation_means<M: SdeModel>(model: &M, states: &[f64], d: usize) -> Vec<f64> {
+    let m = model.dims().obs;
+    let n = states.len() / d;
+    let mut g = vec![0.0; n * m];
+    for i in 0..n {
+        model.obs_mean(&states[i * d..(i + 1) * d], &mut g[i * m..(i + 1) * m]);
+    }
+    g
+}
+
 /// Normalise to sum 1; false if the sum is not positive and finite.
-fn normalise(w: &mut [f64]) -> bool {
+pub(crate) fn normalise(w: &mut [f64]) -> bool {
     let s: f64 = w.iter().sum();
     if !(s > 0.0 && s.is_finite()) {
         return false;
@@ -370,38 +456,7 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
     fn reset(&mut self, t: f64, prior: &Gaussian) {
         self.t = t;
         self.prior = *prior;
-        let d = self.dims.state;
-        let n = self.chain.len();
-        let mut l = [0.0; MAX_STATE * MAX_STATE];
-        l[..d * d].copy_from_slice(prior.cov());
-        if !cholesky(&mut l[..d * d], d) {
-            // Degenerate prior: all mass on the state nearest the mean.
-            let mut near = Vec::with_capacity(1);
-            self.chain.nearest(prior.mean(), 1, &mut near);
-            self.phi.fill(0.0);
-            if let Some(&(j, _)) = near.first() {
-                self.phi[j as usize] = 1.0;
-            }
-            self.belief.set(None);
-            return;
-        }
-        let mut lmax = f64::NEG_INFINITY;
-        for i in 0..n {
-            let z = self.chain.state(i);
-            let mut y = [0.0; MAX_STATE];
-            for a in 0..d {
-                y[a] = z[a] - prior.mean[a];
-            }
-            forward_sub(&l[..d * d], d, &mut y[..d]);
-            let q: f64 = y[..d].iter().map(|v| v * v).sum();
-            let lw = -0.5 * q + self.chain.cell_volume(i).max(1e-300).ln();
-            self.tmp[i] = lw;
-            lmax = lmax.max(lw);
-        }
-        for i in 0..n {
-            self.phi[i] = (self.tmp[i] - lmax).exp();
-        }
-        normalise(&mut self.phi);
+        prior_weights(&self.chain, prior, &mut self.phi, &mut self.tmp);
         self.belief.set(None);
     }
 

@@ -12,11 +12,13 @@
 
 pub mod build;
 pub mod chain_filter;
+pub mod decoder;
 pub mod ekf;
 pub mod gauss;
 pub mod kalman;
 pub mod pf;
 pub mod resample;
+pub mod smoother;
 
 use crate::belief::Gaussian;
 use crate::model::{Dims, Measurement};
