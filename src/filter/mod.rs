@@ -19,6 +19,7 @@ pub mod kalman;
 pub mod pf;
 pub mod resample;
 pub mod smoother;
+pub mod ukf;
 
 use crate::belief::Gaussian;
 use crate::model::{Dims, Measurement};
