@@ -6,7 +6,9 @@
 //! (`{"experiment", "params", "results": [{"method", <metric>...}], "paper": [...]}`),
 //! and prints the same numbers as a table.
 
+pub mod chain_util;
 pub mod report;
+pub mod vanderpol;
 
 pub use report::{ExperimentReport, Progress, Row};
 
@@ -46,6 +48,11 @@ pub struct Experiment {
 pub fn all() -> Vec<Experiment> {
     vec![
         // Each issue registers its experiments here.
+        Experiment {
+            name: "vanderpol",
+            about: "chain filter vs PF/EKF/UKF on Van der Pol (paper 001 eq. 12), error-vs-compute curve",
+            run: vanderpol::run,
+        },
     ]
 }
 
