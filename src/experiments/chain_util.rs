@@ -268,3 +268,61 @@ pub fn predictive_points<M: SdeModel>(
     }
     out
 }
+
+/// Run the chain filter `cf`, a bootstrap PF (`pf_cfg`, reseeded per run),
+/// the EKF and the UKF over `runs` simulated records of `steps` periods of
+/// `dt` from x₀ ~ prior; returns per-method results in that order.
+#[allow(clippy::type_complexity)]
+pub fn compare_filters<M>(
+    model: &M,
+    prior: &Gaussian,
+    cf: &mut crate::filter::chain_filter::ChainFilter<M>,
+    pf_cfg: &crate::filter::pf::PfConfig,
+    runs: usize,
+    seed: u64,
+    dt: f64,
+    steps: usize,
+    bar: &mut super::Progress,
+) -> Result<Vec<(&'static str, Vec<RunResult>)>>
+where
+    M: crate::model::SdeJacobians + Clone + 'static,
+{
+    use crate::filter::ekf::{Ekf, EkfConfig};
+    use crate::filter::pf::Pf;
+    use crate::filter::ukf::{Ukf, UkfConfig};
+    let mut out: Vec<(&'static str, Vec<RunResult>)> =
+        vec![("chain", vec![]), ("pf", vec![]), ("ekf", vec![]), ("ukf", vec![])];
+    for r in 0..runs {
+        let mut rng = crate::rng::stream(seed, r as u64);
+        let x0 = draw_from(model, prior, &mut rng);
+        let rec = simulate(model, &x0, dt, steps, 1e-3, &mut rng);
+        cf.reset(0.0, prior);
+        out[0].1.push(run_filter(cf, &rec, None));
+        let cfg = crate::filter::pf::PfConfig {
+            seed: seed.wrapping_mul(1000).wrapping_add(r as u64),
+            ..pf_cfg.clone()
+        };
+        let mut pf = Pf::new(model.clone(), &cfg, prior, 0.0)?;
+        out[1].1.push(run_filter(&mut pf, &rec, None));
+        let mut ekf = Ekf::new(model.clone(), &EkfConfig { max_dt: dt }, prior, 0.0)?;
+        out[2].1.push(run_filter(&mut ekf, &rec, None));
+        let mut ukf = Ukf::new(model.clone(), &UkfConfig::default(), prior, 0.0)?;
+        out[3].1.push(run_filter(&mut ukf, &rec, None));
+        bar.tick();
+    }
+    Ok(out)
+}
+
+/// One table row from per-run results: mean error over non-diverged runs,
+/// its standard error, median, mean time, diverged count.
+pub fn result_row(name: &str, v: &[RunResult]) -> super::Row {
+    let ok: Vec<f64> = v.iter().filter(|r| !r.diverged).map(|r| r.mean_error).collect();
+    let (m, se) = mean_se(&ok);
+    let (t, _) = mean_se(&v.iter().map(|r| r.time_s).collect::<Vec<_>>());
+    super::Row::new(name)
+        .num("mean_error", m)
+        .num("stderr", se)
+        .num("median_error", median(&ok))
+        .num("time_s", t)
+        .int("diverged", (v.len() - ok.len()) as u64)
+}

@@ -7,7 +7,9 @@
 //! and prints the same numbers as a table.
 
 pub mod chain_util;
+pub mod param_estimation;
 pub mod report;
+pub mod ship;
 pub mod vanderpol;
 
 pub use report::{ExperimentReport, Progress, Row};
@@ -52,6 +54,16 @@ pub fn all() -> Vec<Experiment> {
             name: "vanderpol",
             about: "chain filter vs PF/EKF/UKF on Van der Pol (paper 001 eq. 12), error-vs-compute curve",
             run: vanderpol::run,
+        },
+        Experiment {
+            name: "ship",
+            about: "chain filter vs PF-100/EKF/UKF on the drifting ship (paper 001 eq. 10-11)",
+            run: ship::run,
+        },
+        Experiment {
+            name: "param-estimation",
+            about: "joint state/parameter estimation (paper 001 eq. 13): chain filter vs PF-100",
+            run: param_estimation::run,
         },
     ]
 }
