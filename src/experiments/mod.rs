@@ -7,9 +7,11 @@
 //! and prints the same numbers as a table.
 
 pub mod chain_util;
+pub mod decoding;
 pub mod param_estimation;
 pub mod report;
 pub mod ship;
+pub mod smoothing;
 pub mod vanderpol;
 
 pub use report::{ExperimentReport, Progress, Row};
@@ -64,6 +66,16 @@ pub fn all() -> Vec<Experiment> {
             name: "param-estimation",
             about: "joint state/parameter estimation (paper 001 eq. 13): chain filter vs PF-100",
             run: param_estimation::run,
+        },
+        Experiment {
+            name: "smoothing",
+            about: "forward-backward smoother vs chain filter vs PF-1000 on Van der Pol (thesis 3.5.3)",
+            run: smoothing::run,
+        },
+        Experiment {
+            name: "decoding",
+            about: "MAP trajectory decoding on chains (thesis Alg. 3.2, paper 001 Fig. 6) vs exact RTS",
+            run: decoding::run,
         },
     ]
 }

@@ -97,7 +97,7 @@ fn compare_with_truth(
     use crate::filter::pf::Pf;
     use crate::filter::ukf::{Ukf, UkfConfig};
     use crate::filter::BayesFilter;
-    use rand::Rng as _;
+    use rand::RngExt;
     let mut out: Vec<(&'static str, Vec<_>)> =
         vec![("chain", vec![]), ("pf", vec![]), ("ekf", vec![]), ("ukf", vec![])];
     // the truth keeps φ = 0.5: simulate a model whose φ-noise is off
