@@ -134,7 +134,9 @@ impl Chain {
         for p in points.chunks_exact(d) {
             c.push_state(model, p)?;
         }
-        c.index = SpatialIndex::from_points(d, points).ok_or(ChainError::Dimension(d))?;
+        c.index = SpatialIndex::from_points(d, points).ok_or(ChainError::State(
+            "kd-tree cannot store the states (too many share coordinate values)",
+        ))?;
         for i in 0..n {
             c.connect(i)?;
         }
@@ -180,7 +182,12 @@ impl Chain {
         reconnected: &mut Vec<u32>,
     ) -> Result<u32, ChainError> {
         let slot = self.push_state(model, x)?;
-        self.index.insert(x, slot as u32);
+        if self.index.insert(x, slot as u32).is_err() {
+            self.pop_state();
+            return Err(ChainError::State(
+                "kd-tree cannot store it (too many states share coordinate values)",
+            ));
+        }
         reconnected.clear();
         self.connect(slot)?;
         reconnected.push(slot as u32);
@@ -267,6 +274,25 @@ impl Chain {
         self.chol_ok.push(ok);
         self.trans.push_row();
         Ok(slot)
+    }
+
+    /// Undo the last `push_state`.
+    fn pop_state(&mut self) {
+        let d = self.dim;
+        let n = self.ids.len() - 1;
+        self.states.truncate(n * d);
+        self.ids.truncate(n);
+        self.next_id -= 1;
+        self.holding.truncate(n);
+        self.radius.truncate(n);
+        self.near_count.truncate(n);
+        self.drift.truncate(n * d);
+        self.drift_norm.truncate(n);
+        self.diff_norm.truncate(n);
+        self.ff.truncate(n * d * d);
+        self.chol.truncate(n * d * d);
+        self.chol_ok.truncate(n);
+        self.trans.pop_row();
     }
 
     /// Neighbour count of the k-NN rule at size n.

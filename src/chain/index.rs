@@ -12,6 +12,10 @@ use std::num::NonZeroUsize;
 /// Largest dimension the index supports.
 pub const MAX_INDEX_DIM: usize = 9;
 
+/// The k-d tree could not store a point.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct IndexError;
+
 /// A k-d tree over points of a run-time dimension, items are `u32` slots.
 pub struct SpatialIndex {
     tree: Tree,
@@ -93,7 +97,8 @@ impl Clone for SpatialIndex {
 fn rebuild<const K: usize>(it: impl Iterator<Item = (u32, [f64; K])>) -> MutableKdTree<f64, K> {
     let mut t = MutableKdTree::<f64, K>::default();
     for (item, p) in it {
-        t.add(&p, item).expect("kd-tree insertion");
+        // Every entry came from a tree that held it.
+        t.add(&p, item).expect("re-inserting a stored entry");
     }
     t
 }
@@ -124,6 +129,19 @@ impl SpatialIndex {
 
     /// Build an index over `points` (flat, `n × dim`), item i for point i.
     pub fn from_points(dim: usize, points: &[f64]) -> Option<Self> {
+        Self::bulk(dim, points).or_else(|| {
+            // Bulk construction refuses inputs with many equal coordinates
+            // on one axis (e.g. the decoder's states on {T} × S); insert
+            // one by one instead.
+            let mut idx = Self::new(dim)?;
+            for (i, p) in points.chunks_exact(dim).enumerate() {
+                idx.insert(p, i as u32).ok()?;
+            }
+            Some(idx)
+        })
+    }
+
+    fn bulk(dim: usize, points: &[f64]) -> Option<Self> {
         let n = points.len() / dim.max(1);
         let tree = match dim {
             1 => Tree::D1(MutableKdTree::new_from_slice(&chunks::<1>(points)).ok()?),
@@ -152,11 +170,12 @@ impl SpatialIndex {
         self.len() == 0
     }
 
-    /// Insert point `p` with item `slot`.
-    pub fn insert(&mut self, p: &[f64], slot: u32) {
+    /// Insert point `p` with item `slot`. Fails when a leaf cannot be split
+    /// (more than a bucket of points share a coordinate value on every
+    /// splittable axis — kiddo's limitation).
+    pub fn insert(&mut self, p: &[f64], slot: u32) -> Result<(), IndexError> {
         dispatch!(&mut self.tree, t, K => {
-            // Insertion only fails on internal capacity overflow (> u32 leaves).
-            t.add(&arr::<K>(p), slot).expect("kd-tree insertion");
+            t.add(&arr::<K>(p), slot).map_err(|_| IndexError)
         })
     }
 
@@ -212,7 +231,7 @@ mod tests {
             let pts: Vec<f64> = (0..n * dim).map(|_| rng.random_range(-1.0..1.0)).collect();
             let mut idx = SpatialIndex::new(dim).unwrap();
             for i in 0..n {
-                idx.insert(&pts[i * dim..(i + 1) * dim], i as u32);
+                idx.insert(&pts[i * dim..(i + 1) * dim], i as u32).unwrap();
             }
             let built = SpatialIndex::from_points(dim, &pts).unwrap();
             assert_eq!(idx.len(), n);

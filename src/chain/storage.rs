@@ -49,6 +49,16 @@ impl Transitions {
         self.compact = false;
     }
 
+    /// Remove the last row (must be empty or its entries become garbage).
+    pub fn pop_row(&mut self) {
+        if let Some(c) = self.cap.pop() {
+            self.garbage += c as usize;
+        }
+        self.start.pop();
+        self.len.pop();
+        self.compact = false;
+    }
+
     /// Replace row `i` by `cols`/`probs`.
     pub fn set_row(&mut self, i: usize, cols: &[u32], probs: &[f64]) {
         debug_assert_eq!(cols.len(), probs.len());

@@ -74,7 +74,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         for _ in 0..n {
             Sampler::Uniform.sample(crate::model::SdeModel::bounds(&aug), &mut rng, &mut z);
             if rng.random::<f64>() < boundary_fraction {
-                z[0] = t_end;
+                // on {T} × S, jittered by < 1e-9 T (see decode_time_augmented)
+                z[0] = t_end * (1.0 - 1e-9 * rng.random::<f64>());
             }
             pts.extend_from_slice(&z);
         }

@@ -7,6 +7,7 @@
 //! and prints the same numbers as a table.
 
 pub mod chain_util;
+pub mod convergence;
 pub mod decoding;
 pub mod param_estimation;
 pub mod report;
@@ -52,6 +53,11 @@ pub struct Experiment {
 pub fn all() -> Vec<Experiment> {
     vec![
         // Each issue registers its experiments here.
+        Experiment {
+            name: "convergence",
+            about: "moments of chain trajectories vs the OU process of eq. 2.9 as n grows (thesis Fig. 2-4)",
+            run: convergence::run,
+        },
         Experiment {
             name: "vanderpol",
             about: "chain filter vs PF/EKF/UKF on Van der Pol (paper 001 eq. 12), error-vs-compute curve",

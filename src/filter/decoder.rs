@@ -299,7 +299,9 @@ impl<M: SdeModel> SdeModel for TimeAugmented<'_, M> {
 
 /// Alg. 3.2 on a time-augmented chain `view` (coordinates (t, x)):
 /// Viterbi from the root slot over in-edges with earlier time, ending at
-/// the best state with t ≥ `horizon` − 1e-12. `g_coeff` is the diagonal of
+/// the best state with t ≥ `horizon` − 1e-6 · max(1, horizon) (states on
+/// {T} × S may carry a tiny jitter in t: the k-d tree cannot hold many
+/// points with one equal coordinate). `g_coeff` is the diagonal of
 /// G in dy = g(x) dt + G dv; `inner` supplies g.
 pub fn decode_time_augmented<M: SdeModel>(
     inner: &M,
@@ -391,7 +393,7 @@ pub fn decode_time_augmented<M: SdeModel>(
     let mut end = usize::MAX;
     let mut best = f64::NEG_INFINITY;
     for i in 0..n {
-        if view.state(i)[0] >= horizon - 1e-12 && gamma[i] > best {
+        if view.state(i)[0] >= horizon - 1e-6 * horizon.max(1.0) && gamma[i] > best {
             best = gamma[i];
             end = i;
         }
