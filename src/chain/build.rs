@@ -126,7 +126,7 @@ impl Chain {
     ) -> Result<Self, ChainError> {
         let mut c = Self::new(model, cfg)?;
         let d = c.dim;
-        if points.len() % d != 0 {
+        if !points.len().is_multiple_of(d) {
             return Err(ChainError::State("points length is not a multiple of d"));
         }
         let n = points.len() / d;

@@ -20,6 +20,7 @@ use super::linalg::cholesky;
 
 /// A sampling distribution over S.
 #[derive(Clone, Debug)]
+#[allow(clippy::large_enum_variant)] // fixed-size on purpose: no allocation
 pub enum Sampler {
     /// Uniform on S.
     Uniform,

@@ -51,7 +51,12 @@ impl<'a> Params<'a> {
     }
 
     /// An integer parameter.
-    pub fn usize(&mut self, rep: &mut ExperimentReport, key: &str, default: usize) -> Result<usize> {
+    pub fn usize(
+        &mut self,
+        rep: &mut ExperimentReport,
+        key: &str,
+        default: usize,
+    ) -> Result<usize> {
         let v = match self.raw(key) {
             Some(s) => s
                 .parse::<usize>()
@@ -63,7 +68,12 @@ impl<'a> Params<'a> {
     }
 
     /// A comma-separated list of integers.
-    pub fn list(&mut self, rep: &mut ExperimentReport, key: &str, default: &[usize]) -> Result<Vec<usize>> {
+    pub fn list(
+        &mut self,
+        rep: &mut ExperimentReport,
+        key: &str,
+        default: &[usize],
+    ) -> Result<Vec<usize>> {
         let v = match self.raw(key) {
             Some(s) => s
                 .split(',')
@@ -290,8 +300,12 @@ where
     use crate::filter::ekf::{Ekf, EkfConfig};
     use crate::filter::pf::Pf;
     use crate::filter::ukf::{Ukf, UkfConfig};
-    let mut out: Vec<(&'static str, Vec<RunResult>)> =
-        vec![("chain", vec![]), ("pf", vec![]), ("ekf", vec![]), ("ukf", vec![])];
+    let mut out: Vec<(&'static str, Vec<RunResult>)> = vec![
+        ("chain", vec![]),
+        ("pf", vec![]),
+        ("ekf", vec![]),
+        ("ukf", vec![]),
+    ];
     for r in 0..runs {
         let mut rng = crate::rng::stream(seed, r as u64);
         let x0 = draw_from(model, prior, &mut rng);
@@ -316,7 +330,11 @@ where
 /// One table row from per-run results: mean error over non-diverged runs,
 /// its standard error, median, mean time, diverged count.
 pub fn result_row(name: &str, v: &[RunResult]) -> super::Row {
-    let ok: Vec<f64> = v.iter().filter(|r| !r.diverged).map(|r| r.mean_error).collect();
+    let ok: Vec<f64> = v
+        .iter()
+        .filter(|r| !r.diverged)
+        .map(|r| r.mean_error)
+        .collect();
     let (m, se) = mean_se(&ok);
     let (t, _) = mean_se(&v.iter().map(|r| r.time_s).collect::<Vec<_>>());
     super::Row::new(name)

@@ -46,7 +46,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         Bounds::new_box(&[-1.0, -1.0], &[1.0, 1.0])?,
     );
     let mut bar = Progress::new("convergence", sizes.len() * 2, args.progress);
-    let mut curves: Vec<(&str, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>)> = vec![];
+    type Curve = (&'static str, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>);
+    let mut curves: Vec<Curve> = vec![];
     for kind in ["gaussian", "moment_matched"] {
         let (mut e1, mut e2, mut x1, mut x2) = (vec![], vec![], vec![], vec![]);
         for &n in &sizes {
@@ -68,7 +69,12 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                 s * s * (1.0 - (-2.0 * a1 * t_end).exp()) / (2.0 * a1),
                 s * s * (1.0 - (-2.0 * a2 * t_end).exp()) / (2.0 * a2),
             ];
-            let second = [m[0] * m[0] + v[0], m[0] * m[1], m[0] * m[1], m[1] * m[1] + v[1]];
+            let second = [
+                m[0] * m[0] + v[0],
+                m[0] * m[1],
+                m[0] * m[1],
+                m[1] * m[1] + v[1],
+            ];
             // Monte Carlo over chain trajectories
             let mut sum = [0.0; 2];
             let mut sum2 = [0.0; 4];
@@ -105,7 +111,11 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             let mc_m = [sum[0] / nt, sum[1] / nt];
             let mc_s: Vec<f64> = sum2.iter().map(|v| v / nt).collect();
             e1.push(((mc_m[0] - m[0]).powi(2) + (mc_m[1] - m[1]).powi(2)).sqrt());
-            e2.push(sym2_norm(&[mc_s[0] - second[0], mc_s[1] - second[1], mc_s[3] - second[3]]));
+            e2.push(sym2_norm(&[
+                mc_s[0] - second[0],
+                mc_s[1] - second[1],
+                mc_s[3] - second[3],
+            ]));
             // exact propagation on the equalised chain
             let mut eq = TimeEqualized::new(t_end / 64.0)?;
             eq.fit(chain.holding());
@@ -134,15 +144,23 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                 es[2] += w * x[1] * x[1];
             }
             x1.push(((em[0] - m[0]).powi(2) + (em[1] - m[1]).powi(2)).sqrt());
-            x2.push(sym2_norm(&[es[0] - second[0], es[1] - second[1], es[2] - second[3]]));
+            x2.push(sym2_norm(&[
+                es[0] - second[0],
+                es[1] - second[1],
+                es[2] - second[3],
+            ]));
             rep.results.push(
-                Row::new(if kind == "gaussian" { "chain_gaussian" } else { "chain_lp" })
-                    .int("n_states", n as u64)
-                    .num("first_moment_err", *e1.last().unwrap())
-                    .num("second_moment_err", *e2.last().unwrap())
-                    .num("first_exact_prop", *x1.last().unwrap())
-                    .num("second_exact_prop", *x2.last().unwrap())
-                    .num("out_degree", view.nnz() as f64 / n as f64),
+                Row::new(if kind == "gaussian" {
+                    "chain_gaussian"
+                } else {
+                    "chain_lp"
+                })
+                .int("n_states", n as u64)
+                .num("first_moment_err", *e1.last().unwrap())
+                .num("second_moment_err", *e2.last().unwrap())
+                .num("first_exact_prop", *x1.last().unwrap())
+                .num("second_exact_prop", *x2.last().unwrap())
+                .num("out_degree", view.nnz() as f64 / n as f64),
             );
             bar.tick();
         }
@@ -150,7 +168,12 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     }
     let lx: Vec<f64> = sizes.iter().map(|&n| (n as f64).ln()).collect();
     for (kind, e1, e2, x1, x2) in &curves {
-        let l = |v: &Vec<f64>| slope(&lx, &v.iter().map(|e| e.max(1e-300).ln()).collect::<Vec<_>>());
+        let l = |v: &Vec<f64>| {
+            slope(
+                &lx,
+                &v.iter().map(|e| e.max(1e-300).ln()).collect::<Vec<_>>(),
+            )
+        };
         rep.notes.push(format!(
             "{kind}: log-log slopes vs n — first moment {:.3} (MC) / {:.3} (exact), second moment {:.3} (MC) / {:.3} (exact)",
             l(e1),
@@ -159,7 +182,14 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             l(x2)
         ));
     }
-    rep.paper.push(Row::new("chain").text("first_moment_err", "decreasing in n (Fig. 2-4a, no values)").text("second_moment_err", "decreasing in n (Fig. 2-4b, no values)"));
+    rep.paper.push(
+        Row::new("chain")
+            .text("first_moment_err", "decreasing in n (Fig. 2-4a, no values)")
+            .text(
+                "second_moment_err",
+                "decreasing in n (Fig. 2-4b, no values)",
+            ),
+    );
     Ok(rep)
 }
 

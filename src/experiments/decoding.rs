@@ -17,6 +17,7 @@
 //! - `exact_map`: for this linear-Gaussian system the MAP trajectory of the
 //!   sampled observations is the Rauch–Tung–Striebel smoother mean (exact
 //!   discretisation) — the floor the decoders converge to.
+//!
 //! x̂ is the linear interpolation of the decoded points; the integral is a
 //! Riemann sum on the 1 ms simulation grid. Chains are built once per n.
 
@@ -108,14 +109,19 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         for k in 1..=steps_sim {
             for i in 0..2 {
                 let xi = x[i];
-                x[i] += -a * xi * dt_sim + sigma * dt_sim.sqrt() * rng.sample::<f64, _>(StandardNormal);
+                x[i] +=
+                    -a * xi * dt_sim + sigma * dt_sim.sqrt() * rng.sample::<f64, _>(StandardNormal);
                 y[i] += xi * dt_sim + gamma * dt_sim.sqrt() * rng.sample::<f64, _>(StandardNormal);
             }
             truth.extend_from_slice(&x);
             times.push(k as f64 * dt_sim);
             ypath.extend_from_slice(&y);
         }
-        let path = ObsPath { times: times.clone(), y: ypath.clone(), m: 2 };
+        let path = ObsPath {
+            times: times.clone(),
+            y: ypath.clone(),
+            m: 2,
+        };
         // sampled observations y_k = Δy/Δ
         let mut obs_t = vec![];
         let mut ys = vec![];
@@ -160,7 +166,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         bar.tick();
     }
     let (m, se) = mean_se(&err_exact);
-    rep.results.push(Row::new("exact_map").num("sq_error", m).num("stderr", se));
+    rep.results
+        .push(Row::new("exact_map").num("sq_error", m).num("stderr", se));
     for (i, &n) in sizes.iter().enumerate() {
         let (m, se) = mean_se(&err_aug[i]);
         rep.results.push(
@@ -191,9 +198,24 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         fit(&err_aug),
         fit(&err_mn)
     ));
-    rep.paper.push(Row::new("decoder").int("n_states", 1000).num("sq_error", 11.34e-3).text("source", "paper 001, a=1"));
-    rep.paper.push(Row::new("decoder").int("n_states", 20000).num("sq_error", 3.3e-3).text("source", "paper 001, a=1"));
-    rep.paper.push(Row::new("decoder").int("n_states", 20000).num("sq_error", 4.9e-3).text("source", "thesis, a=3"));
+    rep.paper.push(
+        Row::new("decoder")
+            .int("n_states", 1000)
+            .num("sq_error", 11.34e-3)
+            .text("source", "paper 001, a=1"),
+    );
+    rep.paper.push(
+        Row::new("decoder")
+            .int("n_states", 20000)
+            .num("sq_error", 3.3e-3)
+            .text("source", "paper 001, a=1"),
+    );
+    rep.paper.push(
+        Row::new("decoder")
+            .int("n_states", 20000)
+            .num("sq_error", 4.9e-3)
+            .text("source", "thesis, a=3"),
+    );
     Ok(rep)
 }
 
@@ -209,7 +231,12 @@ pub fn slope(x: &[f64], y: &[f64]) -> f64 {
 
 /// Kalman filter + RTS smoother (C = I, R = r² I, known x₀) on the sampled
 /// observations; returns the smoothed means at t₀..t_K, flat.
-fn rts_smoother(disc: &crate::model::linear::Discretized, x0: &[f64], ys: &[f64], r: f64) -> Vec<f64> {
+fn rts_smoother(
+    disc: &crate::model::linear::Discretized,
+    x0: &[f64],
+    ys: &[f64],
+    r: f64,
+) -> Vec<f64> {
     let k = ys.len() / 2;
     let (ad, qd) = (&disc.ad, &disc.qd);
     let rr = DMatrix::from_diagonal_element(2, 2, r * r);
@@ -232,9 +259,14 @@ fn rts_smoother(disc: &crate::model::linear::Discretized, x0: &[f64], ys: &[f64]
     }
     let mut ms = mf.clone();
     for j in (0..k).rev() {
-        let pinv = pp[j + 1].clone().try_inverse().unwrap_or_else(|| DMatrix::zeros(2, 2));
+        let pinv = pp[j + 1]
+            .clone()
+            .try_inverse()
+            .unwrap_or_else(|| DMatrix::zeros(2, 2));
         let g = &pf[j] * ad.transpose() * pinv;
         ms[j] = &mf[j] + &g * (&ms[j + 1] - &mp[j + 1]);
     }
-    ms.iter().flat_map(|m| m.iter().copied().collect::<Vec<_>>()).collect()
+    ms.iter()
+        .flat_map(|m| m.iter().copied().collect::<Vec<_>>())
+        .collect()
 }

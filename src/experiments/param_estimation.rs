@@ -38,7 +38,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     rep.param("phi_true", 0.5);
     rep.param("prior", "x ~ N(1, 0.2^2), phi ~ N(0.8, 1)");
     rep.param("sigmas", "sigma_x = sigma_v = sigma_phi = 0.1");
-    let model = ParamEstimation::new(ParamEstimationParams::paper(dt)).map_err(anyhow::Error::msg)?;
+    let model =
+        ParamEstimation::new(ParamEstimationParams::paper(dt)).map_err(anyhow::Error::msg)?;
     // x0 drawn from N(1, 0.2²), φ fixed at its true value 0.5 in the truth;
     // the filters' prior is N((1, 0.8), diag(0.2², 1)).
     let prior = Gaussian::diagonal(&[1.0, 0.8], &[0.2, 1.0]);
@@ -47,7 +48,13 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let t0 = std::time::Instant::now();
     let mut cfg = ChainConfig::moment_matched(2);
     cfg.near = NearRule::Knn { c: c_knn };
-    let chain = Chain::sample_batch(&model, cfg, &Sampler::Uniform, n, &mut stream(args.seed, 55))?;
+    let chain = Chain::sample_batch(
+        &model,
+        cfg,
+        &Sampler::Uniform,
+        n,
+        &mut stream(args.seed, 55),
+    )?;
     let mut cf = ChainFilter::new(model.clone(), chain, dt)?;
     let build_s = t0.elapsed().as_secs_f64();
     let pf_cfg = PfConfig {
@@ -59,7 +66,18 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     };
     let mut bar = Progress::new("param-estimation", runs, args.progress);
     // Truth with φ = 0.5 exactly: simulate from truth_prior; filters from prior.
-    let res = compare_with_truth(&model, &prior, &truth_prior, &mut cf, &pf_cfg, runs, args.seed, dt, steps, &mut bar)?;
+    let res = compare_with_truth(
+        &model,
+        &prior,
+        &truth_prior,
+        &mut cf,
+        &pf_cfg,
+        runs,
+        args.seed,
+        dt,
+        steps,
+        &mut bar,
+    )?;
     for (name, v) in &res {
         let mut row = result_row(name, v);
         if *name == "chain" {
@@ -75,7 +93,11 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         rep.results.push(row);
     }
     rep.paper.push(Row::new("chain").num("mean_error", 1.44));
-    rep.paper.push(Row::new("pf").num("mean_error", 1.878).int("particles", 100));
+    rep.paper.push(
+        Row::new("pf")
+            .num("mean_error", 1.878)
+            .int("particles", 100),
+    );
     Ok(rep)
 }
 
@@ -98,8 +120,12 @@ fn compare_with_truth(
     use crate::filter::ukf::{Ukf, UkfConfig};
     use crate::filter::BayesFilter;
     use rand::RngExt;
-    let mut out: Vec<(&'static str, Vec<_>)> =
-        vec![("chain", vec![]), ("pf", vec![]), ("ekf", vec![]), ("ukf", vec![])];
+    let mut out: Vec<(&'static str, Vec<_>)> = vec![
+        ("chain", vec![]),
+        ("pf", vec![]),
+        ("ekf", vec![]),
+        ("ukf", vec![]),
+    ];
     // the truth keeps φ = 0.5: simulate a model whose φ-noise is off
     let mut truth_model = model.clone();
     truth_model.params.sigma_phi = 1e-12;

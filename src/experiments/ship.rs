@@ -57,7 +57,9 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         ..PfConfig::default()
     };
     let mut bar = Progress::new("ship", runs, args.progress);
-    let res = compare_filters(&model, &prior, &mut cf, &pf_cfg, runs, args.seed, dt, steps, &mut bar)?;
+    let res = compare_filters(
+        &model, &prior, &mut cf, &pf_cfg, runs, args.seed, dt, steps, &mut bar,
+    )?;
     for (name, v) in &res {
         let mut row = result_row(name, v);
         if *name == "chain" {
@@ -72,8 +74,16 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         }
         rep.results.push(row);
     }
-    rep.paper.push(Row::new("chain").num("mean_error", 5.02e-3).int("n_states", 100));
-    rep.paper.push(Row::new("pf").num("mean_error", 5.2e-3).int("particles", 100));
+    rep.paper.push(
+        Row::new("chain")
+            .num("mean_error", 5.02e-3)
+            .int("n_states", 100),
+    );
+    rep.paper.push(
+        Row::new("pf")
+            .num("mean_error", 5.2e-3)
+            .int("particles", 100),
+    );
     rep.paper.push(Row::new("ekf").num("mean_error", 1.36e-2));
     rep.notes.push("paper setting not fully specified (T, x0, prior, runs): compare the ranking, not the values".into());
     Ok(rep)

@@ -40,7 +40,13 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let steps = (t_end / dt).round() as usize;
     let mut cfg = ChainConfig::moment_matched(2);
     cfg.near = NearRule::Knn { c: 1.5 };
-    let mut chain = Chain::sample_batch(&model, cfg, &Sampler::Uniform, n, &mut stream(args.seed, 66))?;
+    let mut chain = Chain::sample_batch(
+        &model,
+        cfg,
+        &Sampler::Uniform,
+        n,
+        &mut stream(args.seed, 66),
+    )?;
     let mut eq = crate::chain::TimeEqualized::new(dt)?;
     eq.fit(chain.holding());
     let mut w0 = vec![0.0; n];
@@ -55,7 +61,16 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         let x0 = draw_from(&model, &prior, &mut rng);
         let rec = simulate(&model, &x0, dt, steps, 1e-3, &mut rng);
         let t0 = std::time::Instant::now();
-        let sm = smooth(&model, &view, eq.delta(), &w0, 0.0, &rec.times, &rec.ys, false)?;
+        let sm = smooth(
+            &model,
+            &view,
+            eq.delta(),
+            &w0,
+            0.0,
+            &rec.times,
+            &rec.ys,
+            false,
+        )?;
         tf.push(t0.elapsed().as_secs_f64());
         let (mut a, mut b) = (0.0, 0.0);
         for k in 1..=steps {
@@ -99,8 +114,17 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             .num("time_s", mean_se(&tp).0),
     );
     rep.paper.push(Row::new("chain").num("mean_error", 0.051));
-    rep.paper.push(Row::new("smoother").num("mean_error", 0.0164).int("n_states", 5000));
-    rep.paper.push(Row::new("pf").num("mean_error", 0.04233).int("particles", 1000));
-    rep.notes.push("smoother time_s includes its forward (filter) pass".into());
+    rep.paper.push(
+        Row::new("smoother")
+            .num("mean_error", 0.0164)
+            .int("n_states", 5000),
+    );
+    rep.paper.push(
+        Row::new("pf")
+            .num("mean_error", 0.04233)
+            .int("particles", 1000),
+    );
+    rep.notes
+        .push("smoother time_s includes its forward (filter) pass".into());
     Ok(rep)
 }

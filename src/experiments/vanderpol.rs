@@ -49,8 +49,18 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let chain_sizes = p.list(&mut rep, "curve_states", &[150, 300, 600, 1000, 2000, 4000])?;
     let pf_sizes = p.list(&mut rep, "curve_particles", &[25, 50, 100, 200, 400, 1000])?;
     let c_knn = p.f64(&mut rep, "knn_c", 1.5)?;
-    let kernel = p.choice(&mut rep, "kernel", "moment_matched", &["moment_matched", "gaussian"])?;
-    let sampling = p.choice(&mut rep, "sampling", "predictive", &["predictive", "uniform"])?;
+    let kernel = p.choice(
+        &mut rep,
+        "kernel",
+        "moment_matched",
+        &["moment_matched", "gaussian"],
+    )?;
+    let sampling = p.choice(
+        &mut rep,
+        "sampling",
+        "predictive",
+        &["predictive", "uniform"],
+    )?;
     let uniform_fraction = p.f64(&mut rep, "uniform_fraction", 0.1)?;
     p.finish()?;
     rep.param("mu", 2.0);
@@ -124,7 +134,11 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         bar.tick();
     }
     let summarize = |v: &[RunResult]| {
-        let ok: Vec<f64> = v.iter().filter(|r| !r.diverged).map(|r| r.mean_error).collect();
+        let ok: Vec<f64> = v
+            .iter()
+            .filter(|r| !r.diverged)
+            .map(|r| r.mean_error)
+            .collect();
         let (m, se) = mean_se(&ok);
         let (t, _) = mean_se(&v.iter().map(|r| r.time_s).collect::<Vec<_>>());
         (m, se, t, v.len() - ok.len())
@@ -189,9 +203,20 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                 .num("time_s", t),
         );
     }
-    rep.paper.push(Row::new("chain").int("n_states", 100).num("mean_error", 0.1816).num("time_s", 0.2));
-    rep.paper.push(Row::new("pf").int("particles", 100).num("mean_error", 0.1849).num("time_s", 0.013));
-    rep.paper.push(Row::new("ekf").text("mean_error", "diverges (x2)"));
+    rep.paper.push(
+        Row::new("chain")
+            .int("n_states", 100)
+            .num("mean_error", 0.1816)
+            .num("time_s", 0.2),
+    );
+    rep.paper.push(
+        Row::new("pf")
+            .int("particles", 100)
+            .num("mean_error", 0.1849)
+            .num("time_s", 0.013),
+    );
+    rep.paper
+        .push(Row::new("ekf").text("mean_error", "diverges (x2)"));
     match reached {
         Some((n, t)) => rep.notes.push(format!(
             "cheapest chain reaching PF-{particles}'s error {pf_ref_err:.4}: {n} states at {t:.4} s/run = {:.2}x PF-{particles}'s {pf_ref_time:.4} s/run",
