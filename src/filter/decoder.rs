@@ -9,6 +9,10 @@
 //! - [`viterbi`] — on the time-equalised chain M_n^δ with sampled
 //!   observations at given times (paper 001's decoder): one max-product step
 //!   per δ (fractional last step as in the filter), back-pointers per step.
+//!   Known weakness, measured by the `decoding` experiment: as δ shrinks the
+//!   self-loop p^δ(z|z) = 1 − δ/Δt → 1 dominates the max-product (the lazy
+//!   chain's most probable path mostly stays put), so this decoder does not
+//!   converge with n; the time-augmented decoder does.
 //! - [`decode_time_augmented`] — Alg. 3.2: a chain on z = (t, x) ∈ [0, T] × S
 //!   built for the augmented diffusion ṫ = 1 + σ_t w̃ ([`TimeAugmented`]),
 //!   states sorted by t, `UpdateGamma` over in-neighbours with earlier time,
