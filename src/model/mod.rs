@@ -19,6 +19,7 @@
 pub mod bounds;
 pub mod discrete;
 pub mod linear;
+pub mod param_estimation;
 pub mod ship;
 pub mod vanderpol;
 
