@@ -4,6 +4,7 @@
 //! path-integral control (paper 003).
 
 pub mod cost;
+pub mod implicit;
 pub mod waypoints;
 
 use crate::belief::Gaussian;

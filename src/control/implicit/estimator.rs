@@ -1,0 +1,724 @@
+//! ψ and the optimal control by implicit sampling (paper 003 §3, eq. 16 and
+//! eq. 10 with errata E4/E6):
+//!
+//! ```text
+//! ψ(x,t) ≈ C_n · Σ_c e^{−φ_c} (2π)^{N/2} E_ξ[w_c(ξ)],   C_n = Δt^{−N/2} (det Σ_b)^{−n/2} J_z
+//! u(x,t) = γ R⁻¹ Gᵀ ∂ₓ log ψ(x,t)
+//! ```
+//!
+//! The sum runs over *components* c: one per initial state (the belief mean,
+//! or draws from the belief, ψ̄ = (1/K) Σ_k ψ(x_k)) and per basin of F (one
+//! per slit of a [`Gate`], each found by a constrained minimisation: the
+//! unconstrained minimiser if it lies in the slit, otherwise the minimiser
+//! with the gated coordinate pinned at the nearer slit edge — exact for
+//! convex F). Every component uses the same reference draws ξ (common random
+//! numbers), optionally antithetic (ξ, −ξ), which makes the linear-quadratic
+//! case exact for any number of samples.
+//!
+//! Two ways to get ∂ₓ log ψ along the columns g_j of G:
+//! - [`GradientMethod::FiniteDifference`] — the paper's: re-minimise and
+//!   re-sample with the same ξ at x ± h g_j, central differences of log ψ
+//!   (2p extra solves per component);
+//! - [`GradientMethod::Analytic`] — the exact derivative of the linear-map
+//!   estimator with the proposal centre moving as μ(x) (implicit function
+//!   theorem, δμ = −H⁻¹ ∂²F/∂z∂x · δx) and L held fixed:
+//!   `∂ log ψ̂ = −Σ_{c,k} W_{c,k} [∂ₓF(X_{c,k})·δx + ∇_z F(X_{c,k})·δμ_c]`,
+//!   with the normalised weights W. It is exact whenever ∇²F does not depend
+//!   on x (linear drift, quadratic costs), costs one banded solve per
+//!   direction instead of a minimisation, and with M = 0 samples it reduces
+//!   to the Laplace (most-likely-path) control −γR⁻¹Gᵀ∂ₓF(μ).
+
+use super::maps::{linear_map, linear_map_log_weight, RandomMapWorkspace};
+use super::newton::{NewtonError, NewtonOptions, NewtonWorkspace, Objective};
+use super::path::{Gate, PathCost, PathFunctional, PathSetup};
+use super::weights::log_sum_exp;
+use crate::model::affine::{ControlAffine, PathStructure};
+use crate::rng::SimRng;
+use crate::{MAX_CONTROL, MAX_STATE};
+use rand::RngExt;
+use rand_distr::StandardNormal;
+
+/// How ∂ₓ log ψ is computed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GradientMethod {
+    /// Exact derivative of the linear-map estimator (see the module doc).
+    Analytic,
+    /// Central differences with step `h` and common random numbers.
+    FiniteDifference { h: f64 },
+}
+
+/// Which map solves F(X) − φ = ½ξᵀξ.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MapKind {
+    /// X = μ + L⁻ᵀξ, weight (6).
+    Linear,
+    /// X = μ + λ L⁻ᵀ ξ/|ξ|, Jacobian weight (E1).
+    Random,
+}
+
+/// How a [`Gate`]'s basins are used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GateMode {
+    /// Every basin, each sample weighted by (6) and by its slit's indicator.
+    AllBasins,
+    /// The paper's §3.1 recipe: only the basin of smallest φ, weight 1/det L
+    /// times the fraction of samples passing any slit (no e^{F̂−F} factor).
+    SmallestBasin,
+}
+
+/// Settings of one estimate.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EstimatorOptions {
+    /// Samples M per component (0: Laplace approximation at the mode).
+    pub samples: usize,
+    /// Use antithetic pairs (ξ, −ξ).
+    pub antithetic: bool,
+    pub map: MapKind,
+    pub gradient: GradientMethod,
+    pub gate_mode: GateMode,
+    pub newton: NewtonOptions,
+}
+
+impl Default for EstimatorOptions {
+    fn default() -> Self {
+        Self {
+            samples: 16,
+            antithetic: true,
+            map: MapKind::Linear,
+            gradient: GradientMethod::Analytic,
+            gate_mode: GateMode::AllBasins,
+            newton: NewtonOptions::default(),
+        }
+    }
+}
+
+/// Why an estimate failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum EstimateError {
+    #[error("minimisation failed: {0}")]
+    Newton(#[from] NewtonError),
+    #[error("no sample has positive weight (every path hits the wall)")]
+    NoMass,
+    #[error("{0}")]
+    Unsupported(&'static str),
+    #[error("problem exceeds the sampler's capacity: {0}")]
+    Capacity(&'static str),
+}
+
+/// Result of one estimate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    /// log ψ̄ including every constant (comparable with an analytic ψ).
+    pub log_psi: f64,
+    /// Gᵀ ∂ₓ log ψ̄.
+    pub grad_g: [f64; MAX_CONTROL],
+    /// u = γ R⁻¹ Gᵀ ∂ₓ log ψ̄.
+    pub u: [f64; MAX_CONTROL],
+    /// Smallest φ over the components.
+    pub phi: f64,
+    /// Effective sample size of all weights together.
+    pub ess: f64,
+    /// Samples evaluated (all components, not counting FD re-evaluations).
+    pub samples: usize,
+    /// Fraction of samples with positive weight (paths through the gate).
+    pub pass_fraction: f64,
+    /// Newton iterations of all minimisations.
+    pub newton_iterations: usize,
+    /// Components (initial states × basins) used.
+    pub components: usize,
+}
+
+/// Workspace of the estimator, sized once: no allocation per estimate.
+pub struct PathSampler {
+    setup: PathSetup,
+    cap_steps: usize,
+    cap_samples: usize,
+    cap_components: usize,
+    newton: NewtonWorkspace,
+    rmap: RandomMapWorkspace,
+    /// Reference draws, cap_samples × N (common to all components).
+    xi: Vec<f64>,
+    /// Warm start (nominal minimiser of the previous estimate) and its steps.
+    warm: Vec<f64>,
+    warm_steps: usize,
+    /// Per component: μ (N) and δμ_j (p × N).
+    mu: Vec<f64>,
+    dmu: Vec<f64>,
+    /// Per component and sample: log weight − φ_c, and the derivatives D_j.
+    lw: Vec<f64>,
+    dval: Vec<f64>,
+    /// Scratch: a sample, a gradient, an FD minimiser, FD log weights.
+    xs: Vec<f64>,
+    gz: Vec<f64>,
+    zfd: Vec<f64>,
+    lw_fd: Vec<f64>,
+    /// Per component: φ, pinned variable, log mass, FD log masses (2p).
+    comp_phi: Vec<f64>,
+    comp_pin: Vec<Option<usize>>,
+    log_mass: Vec<f64>,
+    fd_log_mass: Vec<f64>,
+    scratch_c: Vec<f64>,
+}
+
+impl PathSampler {
+    /// A sampler for horizons up to `cap_steps`, up to `cap_samples` samples
+    /// and `cap_components` components (initial states × basins).
+    pub fn new(
+        setup: PathSetup,
+        cap_steps: usize,
+        cap_samples: usize,
+        cap_components: usize,
+    ) -> Self {
+        let nmax = setup.dim(cap_steps).max(1);
+        let kd = setup.bandwidth();
+        let p = setup.p;
+        let cc = cap_components.max(1);
+        let cm = cap_samples.max(1);
+        Self {
+            newton: NewtonWorkspace::new(nmax, kd),
+            rmap: RandomMapWorkspace::new(nmax),
+            xi: vec![0.0; cm * nmax],
+            warm: vec![0.0; nmax],
+            warm_steps: 0,
+            mu: vec![0.0; cc * nmax],
+            dmu: vec![0.0; cc * p * nmax],
+            lw: vec![0.0; cc * cm],
+            dval: vec![0.0; cc * cm * p],
+            xs: vec![0.0; nmax],
+            gz: vec![0.0; nmax],
+            zfd: vec![0.0; nmax],
+            lw_fd: vec![0.0; cm],
+            comp_phi: vec![0.0; cc],
+            comp_pin: vec![None; cc],
+            log_mass: vec![0.0; cc],
+            fd_log_mass: vec![0.0; cc * 2 * p],
+            scratch_c: vec![0.0; 2 * cc],
+            setup,
+            cap_steps,
+            cap_samples,
+            cap_components: cc,
+        }
+    }
+
+    /// The problem constants.
+    pub fn setup(&self) -> &PathSetup {
+        &self.setup
+    }
+
+    /// Largest horizon.
+    pub fn cap_steps(&self) -> usize {
+        self.cap_steps
+    }
+
+    /// Largest number of samples.
+    pub fn cap_samples(&self) -> usize {
+        self.cap_samples
+    }
+
+    /// The nominal minimiser of the last estimate (the most likely path).
+    pub fn warm_start(&self) -> &[f64] {
+        &self.warm[..self.setup.dim(self.warm_steps)]
+    }
+
+    /// Steps of the stored warm start (0: none).
+    pub fn warm_steps(&self) -> usize {
+        self.warm_steps
+    }
+
+    /// Forget the warm start.
+    pub fn reset_warm_start(&mut self) {
+        self.warm_steps = 0;
+    }
+
+    /// Advance the warm start by `k` steps (time moved on) and resize it to
+    /// `n` steps, extrapolating the tail linearly.
+    pub fn shift_warm_start(&mut self, k: usize, n: usize) {
+        let b = self.setup.b;
+        let old = self.warm_steps;
+        if old == 0 || k >= old || n == 0 || n > self.cap_steps {
+            self.warm_steps = 0;
+            return;
+        }
+        if k > 0 {
+            self.warm.copy_within(k * b..old * b, 0);
+        }
+        let have = old - k;
+        for i in have..n {
+            for c in 0..b {
+                let last = self.warm[(i - 1) * b + c];
+                let prev = if i >= 2 {
+                    self.warm[(i - 2) * b + c]
+                } else {
+                    last
+                };
+                self.warm[i * b + c] = match self.setup.structure {
+                    PathStructure::Full => last,
+                    PathStructure::SecondOrder => 2.0 * last - prev,
+                };
+            }
+        }
+        self.warm_steps = n;
+    }
+
+    fn draw(&mut self, rng: &mut SimRng, m: usize, nn: usize, antithetic: bool) {
+        for k in 0..m {
+            if antithetic && k % 2 == 1 {
+                let (a, b) = self.xi.split_at_mut(k * nn);
+                for (d, s) in b[..nn].iter_mut().zip(&a[(k - 1) * nn..k * nn]) {
+                    *d = -s;
+                }
+            } else {
+                for v in self.xi[k * nn..(k + 1) * nn].iter_mut() {
+                    *v = rng.sample(StandardNormal);
+                }
+            }
+        }
+    }
+
+    /// Estimate ψ̄ and the control at the `K = states.len()/m` initial
+    /// states in `states` (flat, m each) with a horizon of `n` steps.
+    #[allow(clippy::too_many_arguments)]
+    pub fn estimate<M: ControlAffine + ?Sized, C: PathCost + ?Sized>(
+        &mut self,
+        model: &M,
+        cost: &C,
+        states: &[f64],
+        n: usize,
+        gate: Option<Gate>,
+        opts: &EstimatorOptions,
+        rng: &mut SimRng,
+    ) -> Result<Estimate, EstimateError> {
+        let st = self.setup.clone();
+        let (m, p) = (st.m, st.p);
+        let nn = st.dim(n);
+        let n_states = states.len() / m;
+        if n == 0 || n > self.cap_steps {
+            return Err(EstimateError::Capacity("horizon"));
+        }
+        if opts.samples > self.cap_samples {
+            return Err(EstimateError::Capacity("samples"));
+        }
+        let gate_var = match gate {
+            Some(g) => Some(st.gate_variable(&g).filter(|&v| v < nn).ok_or(
+                EstimateError::Unsupported(
+                    "gates need a Full-structure model and a step within the horizon",
+                ),
+            )?),
+            None => None,
+        };
+        let basins = gate.map_or(1, |g| g.count);
+        let n_comp = n_states * basins;
+        if n_comp == 0 || n_comp > self.cap_components {
+            return Err(EstimateError::Capacity("components"));
+        }
+        let analytic = matches!(opts.gradient, GradientMethod::Analytic);
+        if analytic
+            && (opts.map == MapKind::Random
+                || (gate.is_some() && opts.gate_mode == GateMode::SmallestBasin))
+        {
+            return Err(EstimateError::Unsupported(
+                "the analytic gradient needs the linear map with every basin weighted; use finite differences",
+            ));
+        }
+        let ms = opts.samples;
+        let mstore = ms.max(1);
+        self.draw(rng, ms, nn, opts.antithetic);
+        if self.warm_steps != n {
+            st.initial_path(model, &states[..m], n, &mut self.warm);
+            self.warm_steps = n;
+        }
+        let mut iters = 0;
+        let mut phi_min = f64::INFINITY;
+        let mut passes = 0usize;
+        let mut evaluated = 0usize;
+        for si in 0..n_states {
+            let x = &states[si * m..(si + 1) * m];
+            let mut f = PathFunctional::new(&st, model, cost, x, n, None);
+            let c0 = si * basins;
+            // Unconstrained minimisation, then one constrained minimum per slit.
+            self.mu[c0 * nn..(c0 + 1) * nn].copy_from_slice(&self.warm[..nn]);
+            self.newton.pinned[..nn].fill(false);
+            let r = self
+                .newton
+                .minimise(&f, &mut self.mu[c0 * nn..(c0 + 1) * nn], &opts.newton)?;
+            iters += r.iterations;
+            let mut last_factored = Some(c0);
+            for bi in 0..basins {
+                let c = c0 + bi;
+                if bi > 0 {
+                    self.mu.copy_within(c0 * nn..(c0 + 1) * nn, c * nn);
+                }
+                self.comp_phi[c] = r.phi;
+                self.comp_pin[c] = None;
+                if let (Some(g), Some(gv)) = (gate, gate_var) {
+                    let (lo, hi) = g.intervals[bi];
+                    let v = self.mu[c * nn + gv];
+                    if v < lo || v > hi {
+                        self.mu[c * nn + gv] = if v < lo { lo } else { hi };
+                        self.newton.pinned[..nn].fill(false);
+                        self.newton.pinned[gv] = true;
+                        let rc = self.newton.minimise(
+                            &f,
+                            &mut self.mu[c * nn..(c + 1) * nn],
+                            &opts.newton,
+                        )?;
+                        iters += rc.iterations;
+                        self.comp_phi[c] = rc.phi;
+                        self.comp_pin[c] = Some(gv);
+                        last_factored = Some(c);
+                    }
+                }
+                phi_min = phi_min.min(self.comp_phi[c]);
+            }
+            let best = (0..basins)
+                .min_by(|&a, &b| self.comp_phi[c0 + a].total_cmp(&self.comp_phi[c0 + b]))
+                .unwrap_or(0);
+            for bi in 0..basins {
+                let c = c0 + bi;
+                if gate.is_some() && opts.gate_mode == GateMode::SmallestBasin && bi != best {
+                    self.log_mass[c] = f64::NEG_INFINITY;
+                    self.fd_log_mass[c * 2 * p..(c + 1) * 2 * p].fill(f64::NEG_INFINITY);
+                    continue;
+                }
+                let pin = self.comp_pin[c];
+                // The factor in the workspace must be the (pinned) Hessian at μ_c.
+                let pinned_matches = last_factored == Some(c)
+                    || (pin.is_none() && last_factored == Some(c0) && self.comp_pin[c0].is_none());
+                if !pinned_matches {
+                    self.newton.pinned[..nn].fill(false);
+                    if let Some(k) = pin {
+                        self.newton.pinned[k] = true;
+                    }
+                    self.newton.factor(&f, &self.mu[c * nn..(c + 1) * nn])?;
+                }
+                if analytic {
+                    self.directions(&f, c, nn, pin);
+                }
+                if pin.is_some() {
+                    // Samples use the unconstrained Hessian (paper §3.1).
+                    self.newton.pinned[..nn].fill(false);
+                    self.newton.factor(&f, &self.mu[c * nn..(c + 1) * nn])?;
+                }
+                last_factored = None;
+                let interval = gate.map(|g| (g.intervals[bi], gate_var.unwrap_or(0)));
+                let (lm, np) = self.sample_component(&f, c, nn, ms, interval, gate, opts, analytic);
+                self.log_mass[c] = lm;
+                passes += np;
+                evaluated += mstore;
+                if let GradientMethod::FiniteDifference { h } = opts.gradient {
+                    let mut xp = [0.0; MAX_STATE];
+                    for j in 0..p {
+                        for (sgn, slot) in [(1.0, 0), (-1.0, 1)] {
+                            for r in 0..m {
+                                xp[r] = x[r] + sgn * h * st.g[r + j * m];
+                            }
+                            f.set_state(&xp[..m]);
+                            let lmj =
+                                self.fd_mass(&f, c, nn, ms, interval, gate, opts, &mut iters)?;
+                            self.fd_log_mass[c * 2 * p + 2 * j + slot] = lmj;
+                        }
+                    }
+                    f.set_state(x);
+                }
+            }
+        }
+        let log_total = log_sum_exp(&self.log_mass[..n_comp]);
+        if !log_total.is_finite() {
+            return Err(EstimateError::NoMass);
+        }
+        let const_n = st.log_psi_constant(n) + 0.5 * nn as f64 * (2.0 * std::f64::consts::PI).ln();
+        let log_psi = log_total - (n_states as f64).ln() + const_n;
+        // Global normalised weights over (component, sample).
+        let all = log_sum_exp_components(&self.lw, n_comp, mstore, &self.log_mass);
+        let mut grad_g = [0.0; MAX_CONTROL];
+        let (mut ess_num, mut ess_den) = (0.0, 0.0);
+        for c in 0..n_comp {
+            if self.log_mass[c] == f64::NEG_INFINITY {
+                continue;
+            }
+            for k in 0..mstore {
+                let l = self.lw[c * mstore + k];
+                if l == f64::NEG_INFINITY {
+                    continue;
+                }
+                let w = (l - all).exp();
+                ess_num += w;
+                ess_den += w * w;
+                if analytic {
+                    for j in 0..p {
+                        grad_g[j] -= w * self.dval[(c * mstore + k) * p + j];
+                    }
+                }
+            }
+        }
+        if let GradientMethod::FiniteDifference { h } = opts.gradient {
+            for j in 0..p {
+                let (lp, lm) = self.scratch_c.split_at_mut(n_comp);
+                for c in 0..n_comp {
+                    lp[c] = self.fd_log_mass[c * 2 * p + 2 * j];
+                    lm[c] = self.fd_log_mass[c * 2 * p + 2 * j + 1];
+                }
+                grad_g[j] = (log_sum_exp(lp) - log_sum_exp(&lm[..n_comp])) / (2.0 * h);
+            }
+        }
+        let mut u = [0.0; MAX_CONTROL];
+        for i in 0..p {
+            let v: f64 = (0..p).map(|j| st.rinv[i + j * p] * grad_g[j]).sum();
+            u[i] = st.gamma * v;
+        }
+        // Warm start for the next call: the first initial state's minimiser
+        // (unconstrained unless every basin was pinned).
+        self.warm[..nn].copy_from_slice(&self.mu[..nn]);
+        self.warm_steps = n;
+        Ok(Estimate {
+            log_psi,
+            grad_g,
+            u,
+            phi: phi_min,
+            ess: if ess_den > 0.0 {
+                ess_num * ess_num / ess_den
+            } else {
+                0.0
+            },
+            samples: evaluated,
+            pass_fraction: if evaluated > 0 {
+                passes as f64 / evaluated as f64
+            } else {
+                0.0
+            },
+            newton_iterations: iters,
+            components: n_comp,
+        })
+    }
+
+    /// δμ_j = −H⁻¹ (∂²F/∂z∂e) δe_j for each column g_j of G, with the factor
+    /// in the workspace (pinned rows as identity, so pinned entries stay 0).
+    fn directions<M: ControlAffine + ?Sized, C: PathCost + ?Sized>(
+        &mut self,
+        f: &PathFunctional<'_, M, C>,
+        c: usize,
+        nn: usize,
+        pinned: Option<usize>,
+    ) {
+        let st = f.setup;
+        let (m, p) = (st.m, st.p);
+        let lp = st.prefix_len();
+        let mut ge = [0.0; 2 * MAX_STATE];
+        let mut cross = [0.0; 4 * MAX_STATE * MAX_STATE];
+        f.prefix_derivatives(&self.mu[c * nn..(c + 1) * nn], &mut ge, &mut cross);
+        let mut de = [0.0; 2 * MAX_STATE];
+        for j in 0..p {
+            st.prefix_direction(&st.g[j * m..(j + 1) * m], &mut de);
+            let d = &mut self.dmu[(c * p + j) * nn..(c * p + j + 1) * nn];
+            d.fill(0.0);
+            for row in 0..lp.min(nn) {
+                let v: f64 = (0..lp).map(|col| cross[row + col * lp] * de[col]).sum();
+                d[row] = -v;
+            }
+            if let Some(k) = pinned {
+                d[k] = 0.0;
+            }
+            self.newton.l.solve_in_place(d);
+        }
+    }
+
+    /// Sample component c around μ_c with the factor in the workspace; store
+    /// log weights (minus φ_c) and, for the analytic gradient, D_j. Returns
+    /// (log mass, samples with positive weight).
+    #[allow(clippy::too_many_arguments)]
+    fn sample_component<M: ControlAffine + ?Sized, C: PathCost + ?Sized>(
+        &mut self,
+        f: &PathFunctional<'_, M, C>,
+        c: usize,
+        nn: usize,
+        ms: usize,
+        interval: Option<((f64, f64), usize)>,
+        gate: Option<Gate>,
+        opts: &EstimatorOptions,
+        analytic: bool,
+    ) -> (f64, usize) {
+        let Self {
+            newton,
+            rmap,
+            xi,
+            xs,
+            gz,
+            lw,
+            dval,
+            dmu,
+            mu,
+            comp_phi,
+            ..
+        } = self;
+        let st = f.setup;
+        let (m, p) = (st.m, st.p);
+        let lp = st.prefix_len();
+        let muc = &mu[c * nn..(c + 1) * nn];
+        let phi = comp_phi[c];
+        let log_det_l = newton.l.log_det_factor();
+        let mstore = ms.max(1);
+        let paper = gate.is_some() && opts.gate_mode == GateMode::SmallestBasin;
+        let mut de = [[0.0; 2 * MAX_STATE]; MAX_CONTROL];
+        for j in 0..p {
+            st.prefix_direction(&st.g[j * m..(j + 1) * m], &mut de[j]);
+        }
+        let mut ge = [0.0; 2 * MAX_STATE];
+        let mut npass = 0;
+        for k in 0..mstore {
+            let xik = &xi[k * nn..(k + 1) * nn];
+            let mut l = if ms == 0 {
+                xs[..nn].copy_from_slice(muc);
+                -log_det_l
+            } else {
+                match opts.map {
+                    MapKind::Linear => {
+                        linear_map(muc, &newton.l, xik, xs);
+                        f64::NAN // weight computed below
+                    }
+                    MapKind::Random => match rmap.sample(f, muc, phi, &newton.l, xik, xs) {
+                        Ok(s) => s.log_jacobian,
+                        Err(_) => f64::NEG_INFINITY,
+                    },
+                }
+            };
+            if !gate_pass(xs, interval, gate, opts.gate_mode) {
+                l = f64::NEG_INFINITY;
+            } else if l.is_nan() {
+                l = if paper {
+                    -log_det_l
+                } else {
+                    let half_rho: f64 = xik.iter().map(|v| 0.5 * v * v).sum();
+                    let fx = if analytic {
+                        f.gradient_with_prefix(&xs[..nn], gz, &mut ge)
+                    } else {
+                        f.value(&xs[..nn])
+                    };
+                    linear_map_log_weight(half_rho, fx, phi, log_det_l)
+                };
+            } else if analytic && l.is_finite() {
+                f.gradient_with_prefix(&xs[..nn], gz, &mut ge);
+            }
+            if l.is_finite() {
+                npass += 1;
+            }
+            lw[c * mstore + k] = if l.is_finite() {
+                l - phi
+            } else {
+                f64::NEG_INFINITY
+            };
+            if analytic && l.is_finite() {
+                for j in 0..p {
+                    let mut d: f64 = (0..lp).map(|r| ge[r] * de[j][r]).sum();
+                    let dm = &dmu[(c * p + j) * nn..(c * p + j + 1) * nn];
+                    for i in 0..nn {
+                        d += gz[i] * dm[i];
+                    }
+                    dval[(c * mstore + k) * p + j] = d;
+                }
+            }
+        }
+        let lm = log_sum_exp(&lw[c * mstore..(c + 1) * mstore]) - (mstore as f64).ln();
+        (lm, npass)
+    }
+
+    /// Log mass of component c at the perturbed state held by `f`:
+    /// re-minimise from μ_c with the same pin, refactor, same ξ.
+    #[allow(clippy::too_many_arguments)]
+    fn fd_mass<M: ControlAffine + ?Sized, C: PathCost + ?Sized>(
+        &mut self,
+        f: &PathFunctional<'_, M, C>,
+        c: usize,
+        nn: usize,
+        ms: usize,
+        interval: Option<((f64, f64), usize)>,
+        gate: Option<Gate>,
+        opts: &EstimatorOptions,
+        iters: &mut usize,
+    ) -> Result<f64, EstimateError> {
+        let Self {
+            newton,
+            rmap,
+            xi,
+            xs,
+            zfd,
+            lw_fd,
+            mu,
+            comp_pin,
+            ..
+        } = self;
+        let pin = comp_pin[c];
+        zfd[..nn].copy_from_slice(&mu[c * nn..(c + 1) * nn]);
+        newton.pinned[..nn].fill(false);
+        if let Some(k) = pin {
+            newton.pinned[k] = true;
+        }
+        let r = newton.minimise(f, &mut zfd[..nn], &opts.newton)?;
+        *iters += r.iterations;
+        if pin.is_some() {
+            newton.pinned[..nn].fill(false);
+            newton.factor(f, &zfd[..nn])?;
+        }
+        let phi = r.phi;
+        let log_det_l = newton.l.log_det_factor();
+        if ms == 0 {
+            return Ok(-phi - log_det_l);
+        }
+        let paper = gate.is_some() && opts.gate_mode == GateMode::SmallestBasin;
+        for k in 0..ms {
+            let xik = &xi[k * nn..(k + 1) * nn];
+            lw_fd[k] = match opts.map {
+                MapKind::Linear => {
+                    let hr = linear_map(&zfd[..nn], &newton.l, xik, xs);
+                    if !gate_pass(xs, interval, gate, opts.gate_mode) {
+                        f64::NEG_INFINITY
+                    } else if paper {
+                        -log_det_l
+                    } else {
+                        linear_map_log_weight(hr, f.value(&xs[..nn]), phi, log_det_l)
+                    }
+                }
+                MapKind::Random => match rmap.sample(f, &zfd[..nn], phi, &newton.l, xik, xs) {
+                    Ok(s) if gate_pass(xs, interval, gate, opts.gate_mode) => s.log_jacobian,
+                    _ => f64::NEG_INFINITY,
+                },
+            };
+        }
+        Ok(log_sum_exp(&lw_fd[..ms]) - (ms as f64).ln() - phi)
+    }
+}
+
+fn gate_pass(
+    x: &[f64],
+    interval: Option<((f64, f64), usize)>,
+    gate: Option<Gate>,
+    mode: GateMode,
+) -> bool {
+    match (interval, gate) {
+        (Some(((lo, hi), gv)), Some(g)) => {
+            let v = x[gv];
+            match mode {
+                GateMode::AllBasins => v >= lo && v <= hi,
+                GateMode::SmallestBasin => g.interval_of(v).is_some(),
+            }
+        }
+        _ => true,
+    }
+}
+
+/// log Σ_{c,k} e^{lw[c,k]} over the components with positive mass.
+fn log_sum_exp_components(lw: &[f64], n_comp: usize, mstore: usize, log_mass: &[f64]) -> f64 {
+    let live = |c: &usize| log_mass[*c] != f64::NEG_INFINITY;
+    let mx = (0..n_comp)
+        .filter(live)
+        .flat_map(|c| lw[c * mstore..(c + 1) * mstore].iter().copied())
+        .fold(f64::NEG_INFINITY, f64::max);
+    if mx == f64::NEG_INFINITY {
+        return mx;
+    }
+    let s: f64 = (0..n_comp)
+        .filter(live)
+        .flat_map(|c| lw[c * mstore..(c + 1) * mstore].iter().copied())
+        .map(|l| (l - mx).exp())
+        .sum();
+    mx + s.ln()
+}
