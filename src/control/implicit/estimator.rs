@@ -343,10 +343,14 @@ impl PathSampler {
                 .minimise(&f, &mut self.mu[c0 * nn..(c0 + 1) * nn], &opts.newton)?;
             iters += r.iterations;
             let mut last_factored = Some(c0);
+            if basins > 1 {
+                self.zfd[..nn].copy_from_slice(&self.mu[c0 * nn..(c0 + 1) * nn]);
+            }
             for bi in 0..basins {
                 let c = c0 + bi;
                 if bi > 0 {
-                    self.mu.copy_within(c0 * nn..(c0 + 1) * nn, c * nn);
+                    // Every basin starts from the unconstrained minimiser.
+                    self.mu[c * nn..(c + 1) * nn].copy_from_slice(&self.zfd[..nn]);
                 }
                 self.comp_phi[c] = r.phi;
                 self.comp_pin[c] = None;
@@ -426,8 +430,8 @@ impl PathSampler {
         if !log_total.is_finite() {
             return Err(EstimateError::NoMass);
         }
-        let const_n = st.log_psi_constant(n) + 0.5 * nn as f64 * (2.0 * std::f64::consts::PI).ln();
-        let log_psi = log_total - (n_states as f64).ln() + const_n;
+        // ψ = (2πΔt)^{−N/2}(det Σ_b)^{−n/2} J_z ∫e^{−F}, ∫e^{−F} = (2π)^{N/2} Σ_c e^{−φ_c} E[w_c].
+        let log_psi = log_total - (n_states as f64).ln() + st.log_psi_constant(n);
         // Global normalised weights over (component, sample).
         let all = log_sum_exp_components(&self.lw, n_comp, mstore, &self.log_mass);
         let mut grad_g = [0.0; MAX_CONTROL];
@@ -721,4 +725,264 @@ fn log_sum_exp_components(lw: &[f64], n_comp: usize, mstore: usize, log_mass: &[
         .map(|l| (l - mx).exp())
         .sum();
     mx + s.ln()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::implicit::path::DiagonalQuadraticCost;
+    use crate::model::affine::{LinearAffine, PathStructure};
+    use crate::model::double_slit::{DoubleSlit, SlitCost};
+    use nalgebra::{Matrix2, Vector2};
+
+    fn double_integrator(q: f64) -> LinearAffine {
+        LinearAffine {
+            m: 2,
+            p: 1,
+            r: 1,
+            a: vec![0.0, 0.0, 1.0, 0.0],
+            g: vec![0.0, 1.0],
+            q: vec![q],
+            structure: PathStructure::SecondOrder,
+        }
+    }
+
+    /// P₀ of the discretised problem the path functional encodes: Euler
+    /// dynamics y_i = y_{i−1} + (A y_{i−1} + G u_{i−1})Δt, control cost
+    /// Δt·½uᵀRu, trapezoidal ½xᵀWx and terminal ½xᵀW_f x.
+    fn discrete_riccati(
+        a: Matrix2<f64>,
+        g: Vector2<f64>,
+        r: f64,
+        w: Matrix2<f64>,
+        wf: Matrix2<f64>,
+        dt: f64,
+        n: usize,
+    ) -> Matrix2<f64> {
+        let ad = Matrix2::identity() + a * dt;
+        let bd = g * dt;
+        let mut p = wf + w * (dt / 2.0);
+        for i in (0..n).rev() {
+            let c = if i == 0 { dt / 2.0 } else { dt };
+            let s = dt * r + (bd.transpose() * p * bd)[(0, 0)];
+            let k = (bd.transpose() * p * ad) / s;
+            p = w * c + ad.transpose() * p * ad - (ad.transpose() * p * bd) * k;
+        }
+        p
+    }
+
+    fn sampler_for(model: &LinearAffine, r: f64, dt: f64, n: usize, m: usize) -> PathSampler {
+        let setup = PathSetup::new(model, &[r], dt).unwrap();
+        PathSampler::new(setup, n, m, 4)
+    }
+
+    /// Acceptance test: on a linear-quadratic problem the controller's
+    /// u = γR⁻¹Gᵀ∂ₓ log ψ equals the Riccati control of the same
+    /// discretisation (to 1e-6), for every gradient method and sample size.
+    #[test]
+    fn linear_quadratic_control_equals_discrete_riccati() {
+        let model = double_integrator(0.7);
+        let (r, dt, n) = (0.5, 0.05, 40);
+        let cost = DiagonalQuadraticCost::new(&[1.0, 0.2], &[3.0, 1.0]);
+        let p0 = discrete_riccati(
+            Matrix2::new(0.0, 1.0, 0.0, 0.0),
+            Vector2::new(0.0, 1.0),
+            r,
+            Matrix2::new(1.0, 0.0, 0.0, 0.2),
+            Matrix2::new(3.0, 0.0, 0.0, 1.0),
+            dt,
+            n,
+        );
+        let x = [1.3, -0.4];
+        let u_ref = -(p0 * Vector2::new(x[0], x[1]))[1] / r;
+        let mut rng = crate::rng::stream(3, 0);
+        for (samples, gradient) in [
+            (0, GradientMethod::Analytic),
+            (16, GradientMethod::Analytic),
+            (0, GradientMethod::FiniteDifference { h: 1e-4 }),
+            (16, GradientMethod::FiniteDifference { h: 1e-4 }),
+        ] {
+            let mut s = sampler_for(&model, r, dt, n, 16);
+            let opts = EstimatorOptions {
+                samples,
+                gradient,
+                ..EstimatorOptions::default()
+            };
+            let e = s
+                .estimate(&model, &cost, &x, n, None, &opts, &mut rng)
+                .unwrap();
+            assert!(
+                (e.u[0] - u_ref).abs() < 1e-6 * (1.0 + u_ref.abs()),
+                "{samples} samples, {gradient:?}: u = {} vs Riccati {u_ref}",
+                e.u[0]
+            );
+            // Quadratic F: every weight equal.
+            assert!((e.ess - samples.max(1) as f64).abs() < 1e-6 * samples.max(1) as f64);
+            // J = −γ log ψ: φ equals the discrete optimal cost-to-go over γ.
+            let j = 0.5
+                * (Vector2::new(x[0], x[1]).transpose() * p0 * Vector2::new(x[0], x[1]))[(0, 0)];
+            assert!((e.phi * s.setup().gamma - j).abs() < 1e-8 * j);
+        }
+    }
+
+    /// Acceptance test: over a long horizon the control approaches the
+    /// continuous-time LQR law of ẍ = u with cost ∫ ½(x₁² + u²): K = [1, √2].
+    #[test]
+    fn long_horizon_control_approaches_continuous_lqr() {
+        let model = double_integrator(1.0);
+        let (r, dt, n) = (1.0, 0.01, 1000);
+        let cost = DiagonalQuadraticCost::new(&[1.0, 0.0], &[0.0, 0.0]);
+        let mut s = sampler_for(&model, r, dt, n, 16);
+        let mut rng = crate::rng::stream(4, 0);
+        for x in [[1.0, 0.5], [-2.0, 0.3]] {
+            let e = s
+                .estimate(
+                    &model,
+                    &cost,
+                    &x,
+                    n,
+                    None,
+                    &EstimatorOptions::default(),
+                    &mut rng,
+                )
+                .unwrap();
+            let lqr = -(x[0] + 2f64.sqrt() * x[1]);
+            // Euler with Δt = 0.01 moves the gain by O(Δt): 2 % tolerance.
+            assert!(
+                (e.u[0] - lqr).abs() < 0.02 * lqr.abs(),
+                "u = {} vs LQR {lqr}",
+                e.u[0]
+            );
+        }
+    }
+
+    /// Acceptance test: the discretised ψ of the double slit after the wall
+    /// equals the analytic ψ (notes check 4: 0.191380 at x = 1, t = t₁).
+    #[test]
+    fn double_slit_psi_after_the_wall_matches_analytic() {
+        let p = DoubleSlit::default();
+        let model = p.model();
+        let setup = PathSetup::new(&model, &[p.r], p.dt).unwrap();
+        let mut s = PathSampler::new(setup, 100, 32, 4);
+        let mut rng = crate::rng::stream(5, 0);
+        for (x, t) in [(1.0, 1.0), (-4.5, 1.0), (2.0, 1.5), (7.0, 1.98)] {
+            let n = p.steps_from(t);
+            for samples in [0, 32] {
+                let opts = EstimatorOptions {
+                    samples,
+                    ..EstimatorOptions::default()
+                };
+                let e = s
+                    .estimate(&model, &SlitCost, &[x], n, None, &opts, &mut rng)
+                    .unwrap();
+                let exact = p.log_psi(x, t);
+                assert!(
+                    (e.log_psi - exact).abs() < 1e-9,
+                    "x={x} t={t}: {} vs {exact}",
+                    e.log_psi
+                );
+                assert!((e.u[0] - p.control(x, t)).abs() < 1e-7 * (1.0 + e.u[0].abs()));
+            }
+        }
+        let e = s
+            .estimate(
+                &model,
+                &SlitCost,
+                &[1.0],
+                50,
+                None,
+                &EstimatorOptions::default(),
+                &mut rng,
+            )
+            .unwrap();
+        assert!((e.log_psi.exp() - 0.191380).abs() < 1e-6);
+        // The printed path term with γ instead of σ gives 0.058 (E7): the
+        // discrete ψ is sensitive to it, so this test would catch it.
+    }
+
+    /// Before the wall: two basins, weighted samples. ψ(1, 0) and u(1, 0)
+    /// agree with the erf solution within Monte Carlo error.
+    #[test]
+    fn double_slit_psi_before_the_wall_matches_analytic() {
+        let p = DoubleSlit::default();
+        let model = p.model();
+        let setup = PathSetup::new(&model, &[p.r], p.dt).unwrap();
+        let m = 4000;
+        let mut s = PathSampler::new(setup, 100, m, 4);
+        let mut rng = crate::rng::stream(6, 0);
+        let n = p.steps_from(0.0);
+        let gate = p.gate_from(0.0);
+        assert_eq!(gate.unwrap().step, 50);
+        for gradient in [
+            GradientMethod::Analytic,
+            GradientMethod::FiniteDifference { h: 1e-4 },
+        ] {
+            let opts = EstimatorOptions {
+                samples: m,
+                gradient,
+                ..EstimatorOptions::default()
+            };
+            let e = s
+                .estimate(&model, &SlitCost, &[1.0], n, gate, &opts, &mut rng)
+                .unwrap();
+            let exact = p.log_psi(1.0, 0.0);
+            // Relative error of an importance-sampling mean ~ 1/√ESS: 4σ bound.
+            let tol = 4.0 / e.ess.sqrt();
+            assert!(e.ess > 50.0, "ESS {}", e.ess);
+            assert!(
+                (e.log_psi - exact).abs() < tol,
+                "log ψ {} vs {exact} (tol {tol})",
+                e.log_psi
+            );
+            let u = p.control(1.0, 0.0);
+            assert!(
+                (e.u[0] - u).abs() < 0.02 * u.abs(),
+                "{gradient:?}: u {} vs {u}",
+                e.u[0]
+            );
+            // Both slits pinned at their inner edge: about half the samples pass.
+            assert!(
+                e.pass_fraction > 0.4 && e.pass_fraction < 0.6,
+                "{}",
+                e.pass_fraction
+            );
+        }
+        // The paper's recipe (smallest basin, indicator only) also lands near.
+        let opts = EstimatorOptions {
+            samples: m,
+            gradient: GradientMethod::FiniteDifference { h: 1e-4 },
+            gate_mode: GateMode::SmallestBasin,
+            ..EstimatorOptions::default()
+        };
+        let e = s
+            .estimate(&model, &SlitCost, &[1.0], n, gate, &opts, &mut rng)
+            .unwrap();
+        assert!(
+            (e.u[0] - p.control(1.0, 0.0)).abs() < 0.2 * 5.1,
+            "paper recipe u {}",
+            e.u[0]
+        );
+    }
+
+    /// The random map gives the same ψ as the linear map on a Gaussian F.
+    #[test]
+    fn random_map_estimate_agrees_on_gaussian_paths() {
+        let p = DoubleSlit::default();
+        let model = p.model();
+        let setup = PathSetup::new(&model, &[p.r], p.dt).unwrap();
+        let mut s = PathSampler::new(setup, 60, 8, 2);
+        let mut rng = crate::rng::stream(7, 0);
+        let opts = EstimatorOptions {
+            samples: 8,
+            map: MapKind::Random,
+            gradient: GradientMethod::FiniteDifference { h: 1e-4 },
+            ..EstimatorOptions::default()
+        };
+        let e = s
+            .estimate(&model, &SlitCost, &[1.0], 50, None, &opts, &mut rng)
+            .unwrap();
+        assert!((e.log_psi - p.log_psi(1.0, 1.0)).abs() < 1e-8);
+        assert!((e.ess - 8.0).abs() < 1e-6);
+        assert!((e.u[0] - p.control(1.0, 1.0)).abs() < 1e-5);
+    }
 }
