@@ -155,6 +155,8 @@ pub struct PathSampler {
     /// Per component: φ, pinned variable, log mass, FD log masses (2p).
     comp_phi: Vec<f64>,
     comp_pin: Vec<Option<usize>>,
+    /// ∂F/∂e at the μ of the last `directions` call.
+    ge_mu: [f64; 2 * MAX_STATE],
     log_mass: Vec<f64>,
     fd_log_mass: Vec<f64>,
     scratch_c: Vec<f64>,
@@ -190,6 +192,7 @@ impl PathSampler {
             lw_fd: vec![0.0; cm],
             comp_phi: vec![0.0; cc],
             comp_pin: vec![None; cc],
+            ge_mu: [0.0; 2 * MAX_STATE],
             log_mass: vec![0.0; cc],
             fd_log_mass: vec![0.0; cc * 2 * p],
             scratch_c: vec![0.0; 2 * cc],
@@ -405,7 +408,10 @@ impl PathSampler {
                 }
                 last_factored = None;
                 let interval = gate.map(|g| (g.intervals[bi], gate_var.unwrap_or(0)));
-                let (lm, np) = self.sample_component(&f, c, nn, ms, interval, gate, opts, analytic);
+                // With one component and no gate the workspace still holds ∇F(μ_c).
+                let grad_valid = n_comp == 1 && gate.is_none();
+                let (lm, np) = self
+                    .sample_component(&f, c, nn, ms, interval, gate, opts, analytic, grad_valid);
                 self.log_mass[c] = lm;
                 passes += np;
                 evaluated += mstore;
@@ -510,6 +516,7 @@ impl PathSampler {
         let mut ge = [0.0; 2 * MAX_STATE];
         let mut cross = [0.0; 4 * MAX_STATE * MAX_STATE];
         f.prefix_derivatives(&self.mu[c * nn..(c + 1) * nn], &mut ge, &mut cross);
+        self.ge_mu = ge;
         let mut de = [0.0; 2 * MAX_STATE];
         for j in 0..p {
             st.prefix_direction(&st.g[j * m..(j + 1) * m], &mut de);
@@ -540,6 +547,7 @@ impl PathSampler {
         gate: Option<Gate>,
         opts: &EstimatorOptions,
         analytic: bool,
+        grad_valid: bool,
     ) -> (f64, usize) {
         let Self {
             newton,
@@ -552,6 +560,7 @@ impl PathSampler {
             dmu,
             mu,
             comp_phi,
+            ge_mu,
             ..
         } = self;
         let st = f.setup;
@@ -600,7 +609,13 @@ impl PathSampler {
                     linear_map_log_weight(half_rho, fx, phi, log_det_l)
                 };
             } else if analytic && l.is_finite() {
-                f.gradient_with_prefix(&xs[..nn], gz, &mut ge);
+                if ms == 0 && grad_valid {
+                    // The mode itself: reuse ∇F(μ) from Newton and ∂F/∂e(μ).
+                    gz[..nn].copy_from_slice(&newton.g[..nn]);
+                    ge = *ge_mu;
+                } else {
+                    f.gradient_with_prefix(&xs[..nn], gz, &mut ge);
+                }
             }
             if l.is_finite() {
                 npass += 1;

@@ -37,10 +37,15 @@ pub trait Objective {
     /// F(x), its gradient into `g` and its Hessian into `h` (already
     /// resized to N and zeroed by the caller).
     fn derivatives(&self, x: &[f64], g: &mut [f64], h: &mut SymBand) -> f64;
+    /// F(x) and its gradient into `g` (no Hessian).
+    fn gradient(&self, x: &[f64], g: &mut [f64]) -> f64;
     /// The directional derivative ∇F(x)·d (the random map's dλ/dρ needs
-    /// it); `scratch` has length ≥ N for objectives that go through the
-    /// gradient.
-    fn directional(&self, x: &[f64], d: &[f64], scratch: &mut [f64]) -> f64;
+    /// it); `scratch` has length ≥ N.
+    fn directional(&self, x: &[f64], d: &[f64], scratch: &mut [f64]) -> f64 {
+        let n = self.dim();
+        self.gradient(x, &mut scratch[..n]);
+        (0..n).map(|i| scratch[i] * d[i]).sum()
+    }
 }
 
 /// Settings of the Newton minimiser.
@@ -54,6 +59,12 @@ pub struct NewtonOptions {
     pub armijo: f64,
     /// Backtracking steps before giving up.
     pub max_backtrack: usize,
+    /// After a step, test convergence with the gradient at the new point and
+    /// the factor of the previous one before paying for a new Hessian. On
+    /// success the returned factor is that of the last Hessian evaluated
+    /// (exact for quadratic F; any positive-definite factor keeps the
+    /// sampling weights exact).
+    pub reuse_factor: bool,
 }
 
 impl Default for NewtonOptions {
@@ -63,6 +74,7 @@ impl Default for NewtonOptions {
             tol_decrement: 1e-13,
             armijo: 1e-4,
             max_backtrack: 40,
+            reuse_factor: false,
         }
     }
 }
@@ -217,6 +229,26 @@ impl NewtonWorkspace {
                 return Err(NewtonError::LineSearch);
             }
             x.copy_from_slice(&self.trial[..n]);
+            if opts.reuse_factor {
+                let f = obj.gradient(x, &mut self.g[..n]);
+                for i in 0..n {
+                    if self.pinned[i] {
+                        self.g[i] = 0.0;
+                    }
+                }
+                let d = &mut self.d[..n];
+                d.copy_from_slice(&self.g[..n]);
+                self.l.solve_in_place(d);
+                let dec = 0.5 * (0..n).map(|i| self.g[i] * d[i]).sum::<f64>();
+                if dec <= opts.tol_decrement * f.abs().max(1.0) {
+                    return Ok(NewtonResult {
+                        phi: f,
+                        iterations: it + 1,
+                        shift: tau,
+                        decrement: dec,
+                    });
+                }
+            }
         }
         Err(NewtonError::MaxIter(opts.max_iter))
     }
@@ -250,10 +282,9 @@ where
     fn derivatives(&self, x: &[f64], g: &mut [f64], h: &mut SymBand) -> f64 {
         (self.derivatives)(x, g, h)
     }
-    fn directional(&self, x: &[f64], d: &[f64], scratch: &mut [f64]) -> f64 {
+    fn gradient(&self, x: &[f64], g: &mut [f64]) -> f64 {
         let mut h = SymBand::new(self.n, self.bandwidth());
-        (self.derivatives)(x, &mut scratch[..self.n], &mut h);
-        (0..self.n).map(|i| scratch[i] * d[i]).sum()
+        (self.derivatives)(x, g, &mut h)
     }
 }
 

@@ -115,6 +115,9 @@ pub struct PathSetup {
     pub g: [f64; MAX_STATE * MAX_CONTROL],
     /// Stencil: (s_{i−1}, s_i) = D · (z_i, z_{i−1}, …, z_{i−K−1}); 2m × W.
     dmat: [f64; 4 * MAX_STATE * MAX_STATE * 3],
+    /// The nonzeros of D as (row, column, value).
+    nz: [(u8, u8, f64); 3 * MAX_STATE],
+    nnz: usize,
     w: usize,
 }
 
@@ -169,6 +172,8 @@ impl PathSetup {
             rinv: [0.0; MAX_CONTROL * MAX_CONTROL],
             g: gbuf,
             dmat: [0.0; 4 * MAX_STATE * MAX_STATE * 3],
+            nz: [(0, 0, 0.0); 3 * MAX_STATE],
+            nnz: 0,
             w: (k + 2) * b,
         };
         setup.s[..b * b].copy_from_slice(sinv.as_slice());
@@ -195,6 +200,15 @@ impl PathSetup {
                     put(c, 2, c, 1.0);
                     put(p + c, 1, c, 1.0 / dt);
                     put(p + c, 2, c, -1.0 / dt);
+                }
+            }
+        }
+        for col in 0..setup.w {
+            for row in 0..rows {
+                let v = setup.dmat[row + col * rows];
+                if v != 0.0 {
+                    setup.nz[setup.nnz] = (row as u8, col as u8, v);
+                    setup.nnz += 1;
                 }
             }
         }
@@ -533,7 +547,6 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
         let mut hs = [0.0; 4 * MAX_STATE * MAX_STATE];
         let mut gw = [0.0; MAX_W];
         let mut hwin = [0.0; MAX_W * MAX_W];
-        let mut tmp = [0.0; MAX_W * 2 * MAX_STATE];
         let mut r = [0.0; MAX_STATE];
         let mut sr = [0.0; MAX_STATE];
         let mut a = [0.0; MAX_STATE * MAX_STATE]; // P (I + J_f Δt), b×m
@@ -582,24 +595,28 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
             }
             if need_h {
                 // (prev, prev) += Aᵀ S A; (prev, cur) −= Aᵀ S P; (cur, cur) += Pᵀ S P.
+                // sa = S A (b×m), then (prev, prev) += Aᵀ sa.
+                let mut sa = [0.0; MAX_STATE * MAX_STATE];
+                for c2 in 0..m {
+                    for d1 in 0..b {
+                        let mut v = 0.0;
+                        for d2 in 0..b {
+                            v += st.s[d1 + d2 * b] * a[d2 + c2 * b];
+                        }
+                        sa[d1 + c2 * b] = v;
+                    }
+                }
                 for c1 in 0..m {
                     for c2 in 0..m {
                         let mut v = 0.0;
                         for d1 in 0..b {
-                            let mut sa = 0.0;
-                            for d2 in 0..b {
-                                sa += st.s[d1 + d2 * b] * a[d2 + c2 * b];
-                            }
-                            v += a[d1 + c1 * b] * sa;
+                            v += a[d1 + c1 * b] * sa[d1 + c2 * b];
                         }
                         hs[c1 + c2 * m2] += v;
                     }
                     for d2 in 0..b {
-                        let mut v = 0.0;
-                        for d1 in 0..b {
-                            v += a[d1 + c1 * b] * st.s[d1 + d2 * b];
-                        }
-                        // (prev c1, cur roff+d2) and its transpose.
+                        // (Aᵀ S)[c1, d2] = (S A)[d2, c1] (S symmetric); (prev c1, cur roff+d2).
+                        let v = sa[d2 + c1 * b];
                         hs[c1 + (m + roff + d2) * m2] -= v;
                         hs[(m + roff + d2) + c1 * m2] -= v;
                     }
@@ -672,40 +689,19 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
                     }
                 }
             }
-            // Map to the window: gw = Dᵀ gs, Hw = Dᵀ Hs D.
-            let d = &st.dmat;
-            for j in 0..w {
-                let mut v = 0.0;
-                for row in 0..m2 {
-                    v += d[row + j * m2] * gs[row];
-                }
-                gw[j] = v;
+            // Map to the window through the sparse stencil: gw = Dᵀ gs,
+            // Hw = Dᵀ Hs D (D has ≤ 3m nonzeros).
+            let nz = &st.nz[..st.nnz];
+            gw[..w].fill(0.0);
+            for &(r, c, v) in nz {
+                gw[c as usize] += v * gs[r as usize];
             }
             if need_h {
-                // tmp = Hs D (2m × w)
-                for j in 0..w {
-                    for row in 0..m2 {
-                        let mut v = 0.0;
-                        for k in 0..m2 {
-                            let dk = d[k + j * m2];
-                            if dk != 0.0 {
-                                v += hs[row + k * m2] * dk;
-                            }
-                        }
-                        tmp[row + j * m2] = v;
-                    }
-                }
-                for j1 in 0..w {
-                    for j2 in 0..=j1 {
-                        let mut v = 0.0;
-                        for row in 0..m2 {
-                            let dr = d[row + j1 * m2];
-                            if dr != 0.0 {
-                                v += dr * tmp[row + j2 * m2];
-                            }
-                        }
-                        hwin[j1 + j2 * w] = v;
-                        hwin[j2 + j1 * w] = v;
+                hwin[..w * w].fill(0.0);
+                for &(r1, c1, v1) in nz {
+                    let col = &hs[r1 as usize * m2..(r1 as usize + 1) * m2];
+                    for &(r2, c2, v2) in nz {
+                        hwin[c2 as usize + c1 as usize * w] += v1 * v2 * col[r2 as usize];
                     }
                 }
             }
@@ -826,20 +822,18 @@ impl<M: ControlAffine + ?Sized, C: PathCost + ?Sized> Objective for PathFunction
         )
     }
 
-    fn directional(&self, z: &[f64], d: &[f64], scratch: &mut [f64]) -> f64 {
-        let n = self.dim();
+    fn gradient(&self, z: &[f64], g: &mut [f64]) -> f64 {
         self.pass(
             z,
             Outputs {
-                g: Some(&mut scratch[..n]),
+                g: Some(g),
                 h: None,
                 ge: None,
                 cross: None,
                 exact: true,
                 last_step: usize::MAX,
             },
-        );
-        (0..n).map(|i| scratch[i] * d[i]).sum()
+        )
     }
 }
 
