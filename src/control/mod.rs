@@ -5,6 +5,7 @@
 
 pub mod cost;
 pub mod implicit;
+pub mod mppi;
 pub mod path_integral;
 pub mod waypoints;
 

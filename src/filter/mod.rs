@@ -10,6 +10,14 @@
 //! Backends: bootstrap particle filter, EKF, UKF, Kalman (exact reference
 //! on linear models), and the Markov-chain filter of thesis ch. 3.
 
+pub mod build;
+pub mod ekf;
+pub mod gauss;
+pub mod kalman;
+pub mod pf;
+pub mod resample;
+pub mod ukf;
+
 use crate::belief::Gaussian;
 use crate::model::{Dims, Measurement};
 
