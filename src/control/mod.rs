@@ -6,6 +6,7 @@
 pub mod cost;
 pub mod implicit;
 pub mod mppi;
+pub mod naive_pi;
 pub mod path_integral;
 pub mod waypoints;
 

@@ -30,7 +30,7 @@
 
 use super::cost::TrackingCost;
 use super::implicit::estimator::{
-    EstimatorOptions, GateMode, GradientMethod, MapKind, PathSampler,
+    EstimatorOptions, GateMode, GateSampling, GradientMethod, MapKind, PathSampler,
 };
 use super::implicit::newton::NewtonOptions;
 use super::implicit::path::{PathCost, PathSetup};
@@ -122,15 +122,15 @@ impl Default for PathIntegralConfig {
     fn default() -> Self {
         Self {
             horizon_steps: 50,
-            dt: 0.05,
+            dt: 0.04,
             samples: 8,
             antithetic: true,
             horizon: HorizonMode::Receding,
             final_time: 0.0,
             belief: BeliefMode::Mean,
             belief_samples: 4,
-            control_cost: 0.5,
-            u_max: 5.0,
+            control_cost: 0.1,
+            u_max: 3.0,
             seed: 1,
             budget_us: 500.0,
             gradient: GradientConfig::Analytic,
@@ -223,6 +223,7 @@ impl PathIntegralConfig {
                 }
             },
             gate_mode: GateMode::AllBasins,
+            gate_sampling: GateSampling::Marginal,
             newton: NewtonOptions {
                 max_iter: self.newton_max_iter,
                 reuse_factor: true,
@@ -663,7 +664,7 @@ mod tests {
             toml::from_str("belief = \"sampled\"\nhorizon = \"shrinking\"\nfinal_time = 3.0")
                 .unwrap();
         assert_eq!(partial.belief, BeliefMode::Sampled);
-        assert_eq!(partial.dt, 0.05);
+        assert_eq!(partial.dt, 0.04);
         let bad = PathIntegralConfig {
             dt: 0.0,
             ..cfg.clone()

@@ -6,6 +6,8 @@
 //! (`{"experiment", "params", "results": [{"method", <metric>...}], "paper": [...]}`),
 //! and prints the same numbers as a table.
 
+pub mod double_slit;
+pub mod pi_common;
 pub mod report;
 
 pub use report::{ExperimentReport, Progress, Row};
@@ -46,6 +48,11 @@ pub struct Experiment {
 pub fn all() -> Vec<Experiment> {
     vec![
         // Each issue registers its experiments here.
+        Experiment {
+            name: "double-slit",
+            about: "paper 003 Table 2: implicit-sampling path-integral control of the double slit vs the analytic solution and naive MC",
+            run: double_slit::run,
+        },
     ]
 }
 

@@ -21,6 +21,7 @@
 
 use super::affine::ControlledBrownian;
 use crate::control::implicit::path::{Gate, PathCost};
+use crate::control::implicit::truncnorm::ln_erf_diff;
 
 /// Table 1 of the paper.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -72,35 +73,6 @@ impl PathCost for SlitCost {
         g[0] = x[0];
         h[0] = 1.0;
         0.5 * x[0] * x[0]
-    }
-}
-
-/// ln erfc(a), accurate in the far tail (asymptotic series beyond a = 20,
-/// where erfc underflows soon after).
-pub fn ln_erfc(a: f64) -> f64 {
-    if a < 20.0 {
-        libm::erfc(a).ln()
-    } else {
-        // erfc(a) = e^{−a²}/(a√π) (1 − 1/(2a²) + 3/(4a⁴) − 15/(8a⁶) + …)
-        let a2 = a * a;
-        let series = 1.0 - 0.5 / a2 + 0.75 / (a2 * a2) - 1.875 / (a2 * a2 * a2);
-        -a2 - (a * std::f64::consts::PI.sqrt()).ln() + series.ln()
-    }
-}
-
-/// ln(erf(hi) − erf(lo)) for lo < hi without cancellation.
-pub fn ln_erf_diff(lo: f64, hi: f64) -> f64 {
-    if hi <= lo {
-        return f64::NEG_INFINITY;
-    }
-    if lo >= 0.0 {
-        // erfc(lo) − erfc(hi)
-        let (a, b) = (ln_erfc(lo), ln_erfc(hi));
-        a + (-(b - a).exp()).ln_1p()
-    } else if hi <= 0.0 {
-        ln_erf_diff(-hi, -lo)
-    } else {
-        (libm::erf(hi) - libm::erf(lo)).ln()
     }
 }
 
@@ -198,6 +170,7 @@ impl DoubleSlit {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::control::implicit::truncnorm::ln_erfc;
 
     /// ψ before the wall by Simpson quadrature of its defining integral:
     /// ψ = ∫_slits N(y₁; x, σŝ) √(γ/(γ+σs)) e^{−y₁²/(2(γ+σs))} dy₁.

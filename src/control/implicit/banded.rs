@@ -216,6 +216,24 @@ impl SymBand {
         self.solve_upper_in_place(b);
     }
 
+    /// With self = L: ‖Lᵀ d‖² = dᵀ L Lᵀ d (the quadratic form of the
+    /// factored matrix).
+    pub fn upper_norm_sq(&self, d: &[f64]) -> f64 {
+        let n = self.n;
+        let w = self.kd + 1;
+        let mut s = 0.0;
+        for j in 0..n {
+            let col = &self.data[j * w..];
+            let last = (j + self.kd).min(n - 1);
+            let mut v = 0.0;
+            for i in j..=last {
+                v += col[i - j] * d[i];
+            }
+            s += v * v;
+        }
+        s
+    }
+
     /// With self = L: log det L = Σ log L_ii (so log det A = 2 log det L).
     pub fn log_det_factor(&self) -> f64 {
         (0..self.n).map(|j| self.data[j * (self.kd + 1)].ln()).sum()
@@ -264,9 +282,11 @@ mod tests {
             for i in 0..n {
                 assert!((sol[i] - x_true[i]).abs() < 1e-10, "n={n} kd={kd}");
             }
+            let quad = x_true.dot(&(&d * &x_true));
             let dense = d.clone().cholesky().unwrap();
             let ld: f64 = dense.l().diagonal().iter().map(|v| v.ln()).sum();
             assert!((b.log_det_factor() - ld).abs() < 1e-10);
+            assert!((b.upper_norm_sq(x_true.as_slice()) - quad).abs() < 1e-9 * quad.max(1.0));
             // The factor's entries equal the dense factor's.
             let l = dense.l();
             for j in 0..n {

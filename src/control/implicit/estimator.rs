@@ -31,6 +31,7 @@
 use super::maps::{linear_map, linear_map_log_weight, RandomMapWorkspace};
 use super::newton::{NewtonError, NewtonOptions, NewtonWorkspace, Objective};
 use super::path::{Gate, PathCost, PathFunctional, PathSetup};
+use super::truncnorm;
 use super::weights::log_sum_exp;
 use crate::model::affine::{ControlAffine, PathStructure};
 use crate::rng::SimRng;
@@ -66,6 +67,21 @@ pub enum GateMode {
     SmallestBasin,
 }
 
+/// How samples of a gated basin are generated (linear map, analytic gradient).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GateSampling {
+    /// Draw the gated coordinate δ = X_k − μ_k from its Laplace marginal
+    /// restricted to the slit, q(δ) ∝ e^{−g_k δ − δ²/(2s²)} (s² = (H⁻¹)_kk,
+    /// g_k = ∂F/∂z_k(μ), non-zero at a pinned minimum), by its inverse CDF
+    /// at stratified levels, and the other coordinates from the Gaussian
+    /// N(μ, H⁻¹) conditioned on it; weight e^{−F}/q. Every sample passes
+    /// the wall, and for quadratic F every weight is equal.
+    Marginal,
+    /// The plain linear map around the (constrained) minimum, samples
+    /// outside the slit get weight 0 (about half of them).
+    Rejection,
+}
+
 /// Settings of one estimate.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EstimatorOptions {
@@ -76,6 +92,8 @@ pub struct EstimatorOptions {
     pub map: MapKind,
     pub gradient: GradientMethod,
     pub gate_mode: GateMode,
+    /// Used with a gate, the linear map, all basins and the analytic gradient.
+    pub gate_sampling: GateSampling,
     pub newton: NewtonOptions,
 }
 
@@ -87,6 +105,7 @@ impl Default for EstimatorOptions {
             map: MapKind::Linear,
             gradient: GradientMethod::Analytic,
             gate_mode: GateMode::AllBasins,
+            gate_sampling: GateSampling::Marginal,
             newton: NewtonOptions::default(),
         }
     }
@@ -157,6 +176,10 @@ pub struct PathSampler {
     comp_pin: Vec<Option<usize>>,
     /// ∂F/∂e at the μ of the last `directions` call.
     ge_mu: [f64; 2 * MAX_STATE],
+    /// Stratified uniforms (j + U_j)/M for the gate marginal, and the column
+    /// H⁻¹e_k of the gated coordinate.
+    strata: Vec<f64>,
+    gate_col: Vec<f64>,
     log_mass: Vec<f64>,
     fd_log_mass: Vec<f64>,
     scratch_c: Vec<f64>,
@@ -193,6 +216,8 @@ impl PathSampler {
             comp_phi: vec![0.0; cc],
             comp_pin: vec![None; cc],
             ge_mu: [0.0; 2 * MAX_STATE],
+            strata: vec![0.0; cm],
+            gate_col: vec![0.0; nmax],
             log_mass: vec![0.0; cc],
             fd_log_mass: vec![0.0; cc * 2 * p],
             scratch_c: vec![0.0; 2 * cc],
@@ -264,6 +289,9 @@ impl PathSampler {
     }
 
     fn draw(&mut self, rng: &mut SimRng, m: usize, nn: usize, antithetic: bool) {
+        for j in 0..m {
+            self.strata[j] = (j as f64 + rng.random::<f64>()) / m as f64;
+        }
         for k in 0..m {
             if antithetic && k % 2 == 1 {
                 let (a, b) = self.xi.split_at_mut(k * nn);
@@ -388,30 +416,56 @@ impl PathSampler {
                     continue;
                 }
                 let pin = self.comp_pin[c];
-                // The factor in the workspace must be the (pinned) Hessian at μ_c.
-                let pinned_matches = last_factored == Some(c)
-                    || (pin.is_none() && last_factored == Some(c0) && self.comp_pin[c0].is_none());
-                if !pinned_matches {
-                    self.newton.pinned[..nn].fill(false);
-                    if let Some(k) = pin {
-                        self.newton.pinned[k] = true;
+                let marginal = gate_var.is_some()
+                    && analytic
+                    && opts.map == MapKind::Linear
+                    && opts.gate_sampling == GateSampling::Marginal;
+                if gate_var.is_some() && (marginal || analytic) {
+                    // Unconstrained factor at μ_c, column H⁻¹e_k, and δμ with
+                    // the gated coordinate held (the slit does not move with x).
+                    let current = pin.is_none()
+                        && (last_factored == Some(c)
+                            || (last_factored == Some(c0) && self.comp_pin[c0].is_none()));
+                    if !current {
+                        self.newton.pinned[..nn].fill(false);
+                        self.newton.factor(&f, &self.mu[c * nn..(c + 1) * nn])?;
                     }
-                    self.newton.factor(&f, &self.mu[c * nn..(c + 1) * nn])?;
-                }
-                if analytic {
-                    self.directions(&f, c, nn, pin);
-                }
-                if pin.is_some() {
-                    // Samples use the unconstrained Hessian (paper §3.1).
-                    self.newton.pinned[..nn].fill(false);
-                    self.newton.factor(&f, &self.mu[c * nn..(c + 1) * nn])?;
+                    let k = gate_var.unwrap_or(0);
+                    self.gate_col[..nn].fill(0.0);
+                    self.gate_col[k] = 1.0;
+                    self.newton.l.solve_in_place(&mut self.gate_col[..nn]);
+                    if analytic {
+                        self.directions(&f, c, nn, None, Some(k));
+                    }
+                } else {
+                    // The factor in the workspace must be the (pinned) Hessian at μ_c.
+                    let pinned_matches = last_factored == Some(c)
+                        || (pin.is_none()
+                            && last_factored == Some(c0)
+                            && self.comp_pin[c0].is_none());
+                    if !pinned_matches {
+                        self.newton.pinned[..nn].fill(false);
+                        if let Some(k) = pin {
+                            self.newton.pinned[k] = true;
+                        }
+                        self.newton.factor(&f, &self.mu[c * nn..(c + 1) * nn])?;
+                    }
+                    if analytic {
+                        self.directions(&f, c, nn, pin, None);
+                    }
+                    if pin.is_some() {
+                        // Samples use the unconstrained Hessian (paper §3.1).
+                        self.newton.pinned[..nn].fill(false);
+                        self.newton.factor(&f, &self.mu[c * nn..(c + 1) * nn])?;
+                    }
                 }
                 last_factored = None;
                 let interval = gate.map(|g| (g.intervals[bi], gate_var.unwrap_or(0)));
                 // With one component and no gate the workspace still holds ∇F(μ_c).
                 let grad_valid = n_comp == 1 && gate.is_none();
-                let (lm, np) = self
-                    .sample_component(&f, c, nn, ms, interval, gate, opts, analytic, grad_valid);
+                let (lm, np) = self.sample_component(
+                    &f, c, nn, ms, interval, gate, opts, analytic, grad_valid, marginal,
+                );
                 self.log_mass[c] = lm;
                 passes += np;
                 evaluated += mstore;
@@ -509,6 +563,7 @@ impl PathSampler {
         c: usize,
         nn: usize,
         pinned: Option<usize>,
+        project: Option<usize>,
     ) {
         let st = f.setup;
         let (m, p) = (st.m, st.p);
@@ -530,6 +585,16 @@ impl PathSampler {
                 d[k] = 0.0;
             }
             self.newton.l.solve_in_place(d);
+            if let Some(k) = project {
+                // Hold z_k: δμ ← δμ − (δμ_k / (H⁻¹)_kk) H⁻¹e_k, the solution of
+                // the system with row k replaced by the constraint δμ_k = 0.
+                let col = &self.gate_col[..nn];
+                let a = d[k] / col[k];
+                for i in 0..nn {
+                    d[i] -= a * col[i];
+                }
+                d[k] = 0.0;
+            }
         }
     }
 
@@ -548,7 +613,13 @@ impl PathSampler {
         opts: &EstimatorOptions,
         analytic: bool,
         grad_valid: bool,
+        marginal: bool,
     ) -> (f64, usize) {
+        if marginal {
+            if let Some(((lo, hi), k)) = interval {
+                return self.sample_component_marginal(f, c, nn, ms, lo, hi, k);
+            }
+        }
         let Self {
             newton,
             rmap,
@@ -633,6 +704,102 @@ impl PathSampler {
                         d += gz[i] * dm[i];
                     }
                     dval[(c * mstore + k) * p + j] = d;
+                }
+            }
+        }
+        let lm = log_sum_exp(&lw[c * mstore..(c + 1) * mstore]) - (mstore as f64).ln();
+        (lm, npass)
+    }
+
+    /// Sample component c with the gated coordinate k drawn from its Laplace
+    /// marginal on [lo, hi] (see [`GateSampling::Marginal`]); the factor in
+    /// the workspace is the unconstrained one at μ_c and `gate_col` = H⁻¹e_k.
+    #[allow(clippy::too_many_arguments)]
+    fn sample_component_marginal<M: ControlAffine + ?Sized, C: PathCost + ?Sized>(
+        &mut self,
+        f: &PathFunctional<'_, M, C>,
+        c: usize,
+        nn: usize,
+        ms: usize,
+        lo: f64,
+        hi: f64,
+        k: usize,
+    ) -> (f64, usize) {
+        let Self {
+            newton,
+            xi,
+            xs,
+            gz,
+            lw,
+            dval,
+            dmu,
+            mu,
+            comp_phi,
+            strata,
+            gate_col,
+            ..
+        } = self;
+        let st = f.setup;
+        let (m, p) = (st.m, st.p);
+        let lp = st.prefix_len();
+        let muc = &mu[c * nn..(c + 1) * nn];
+        let phi = comp_phi[c];
+        let log_det_l = newton.l.log_det_factor();
+        let s2 = gate_col[k];
+        let s = s2.sqrt();
+        let gk = newton.g[k];
+        // δ = X_k − μ_k ~ N(m1, s²) restricted to [lo − μ_k, hi − μ_k], m1 = −g_k s².
+        let m1 = -gk * s2;
+        let alpha = (lo - muc[k] - m1) / s;
+        let beta = (hi - muc[k] - m1) / s;
+        let log_z = 0.5 * gk * gk * s2 + truncnorm::ln_mass(alpha, beta);
+        let mstore = ms.max(1);
+        let mut de = [[0.0; 2 * MAX_STATE]; MAX_CONTROL];
+        for j in 0..p {
+            st.prefix_direction(&st.g[j * m..(j + 1) * m], &mut de[j]);
+        }
+        let mut ge = [0.0; 2 * MAX_STATE];
+        let mut npass = 0;
+        for j in 0..mstore {
+            let delta = if ms == 0 {
+                m1.clamp(lo - muc[k], hi - muc[k])
+            } else {
+                m1 + s * truncnorm::quantile(alpha, beta, strata[j])
+            };
+            // Y = L⁻ᵀξ, then condition on Y_k = δ: X = μ + Y + H⁻¹e_k (δ − Y_k)/s².
+            if ms == 0 {
+                xs[..nn].fill(0.0);
+            } else {
+                xs[..nn].copy_from_slice(&xi[j * nn..(j + 1) * nn]);
+                newton.l.solve_upper_in_place(&mut xs[..nn]);
+            }
+            let shift = (delta - xs[k]) / s2;
+            for i in 0..nn {
+                xs[i] += gate_col[i] * shift;
+            }
+            // F̂ − φ = ½ ‖Lᵀ(X − μ)‖², with X − μ still in xs.
+            let half_quad = 0.5 * newton.l.upper_norm_sq(&xs[..nn]);
+            for i in 0..nn {
+                xs[i] += muc[i];
+            }
+            let fx = f.gradient_with_prefix(&xs[..nn], gz, &mut ge);
+            let l = -log_det_l + log_z + half_quad - (fx - phi) + gk * delta;
+            if l.is_finite() {
+                npass += 1;
+            }
+            lw[c * mstore + j] = if l.is_finite() {
+                l - phi
+            } else {
+                f64::NEG_INFINITY
+            };
+            if l.is_finite() {
+                for jj in 0..p {
+                    let mut d: f64 = (0..lp).map(|r| ge[r] * de[jj][r]).sum();
+                    let dm = &dmu[(c * p + jj) * nn..(c * p + jj + 1) * nn];
+                    for i in 0..nn {
+                        d += gz[i] * dm[i];
+                    }
+                    dval[(c * mstore + j) * p + jj] = d;
                 }
             }
         }
@@ -955,12 +1122,26 @@ mod tests {
                 "{gradient:?}: u {} vs {u}",
                 e.u[0]
             );
-            // Both slits pinned at their inner edge: about half the samples pass.
-            assert!(
-                e.pass_fraction > 0.4 && e.pass_fraction < 0.6,
-                "{}",
-                e.pass_fraction
-            );
+            if gradient == GradientMethod::Analytic {
+                // Gate marginal: every sample passes, all weights are equal
+                // (F is quadratic) and ψ is exact to rounding.
+                assert_eq!(e.pass_fraction, 1.0);
+                // Equal weights within each slit; the upper slit carries e⁻⁹ of the mass.
+                assert!(e.ess > 0.999 * m as f64, "ESS {}", e.ess);
+                assert!(
+                    (e.log_psi - exact).abs() < 1e-9,
+                    "log ψ {} vs {exact}",
+                    e.log_psi
+                );
+                assert!((e.u[0] - u).abs() < 1e-3 * u.abs(), "u {} vs {u}", e.u[0]);
+            } else {
+                // Rejection: both slits pinned at their inner edge, about half pass.
+                assert!(
+                    e.pass_fraction > 0.4 && e.pass_fraction < 0.6,
+                    "{}",
+                    e.pass_fraction
+                );
+            }
         }
         // The paper's recipe (smallest basin, indicator only) also lands near.
         let opts = EstimatorOptions {
