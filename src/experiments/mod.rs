@@ -6,7 +6,9 @@
 //! (`{"experiment", "params", "results": [{"method", <metric>...}], "paper": [...]}`),
 //! and prints the same numbers as a table.
 
+pub mod arm;
 pub mod double_slit;
+pub mod himmelblau;
 pub mod pi_common;
 pub mod report;
 
@@ -52,6 +54,16 @@ pub fn all() -> Vec<Experiment> {
             name: "double-slit",
             about: "paper 003 Table 2: implicit-sampling path-integral control of the double slit vs the analytic solution and naive MC",
             run: double_slit::run,
+        },
+        Experiment {
+            name: "himmelblau",
+            about: "paper 003 Table 4: minimising Himmelblau's function by stochastic optimal control vs undamped Newton",
+            run: himmelblau::run,
+        },
+        Experiment {
+            name: "arm",
+            about: "paper 003 Fig. 4: path-integral control of the two-link arm with a wrong payload (m1 = 1.4) vs the exact optimal controller",
+            run: arm::run,
         },
     ]
 }
