@@ -11,6 +11,7 @@ pub mod double_slit;
 pub mod himmelblau;
 pub mod pi_common;
 pub mod report;
+pub mod ship_control;
 
 pub use report::{ExperimentReport, Progress, Row};
 
@@ -64,6 +65,11 @@ pub fn all() -> Vec<Experiment> {
             name: "arm",
             about: "paper 003 Fig. 4: path-integral control of the two-link arm with a wrong payload (m1 = 1.4) vs the exact optimal controller",
             run: arm::run,
+        },
+        Experiment {
+            name: "ship-control",
+            about: "closed-loop ship: implicit path-integral control vs MPPI-2048/512, cost and compute per control",
+            run: ship_control::run,
         },
     ]
 }
