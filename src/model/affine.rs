@@ -27,7 +27,6 @@
 //! model (the velocity noise e dw₃, e dw₄ shares the control channel).
 
 use super::ship::Ship;
-use super::SdeJacobians;
 use crate::{MAX_CONTROL, MAX_STATE};
 
 /// Which coordinates are path variables of the sampler.
@@ -279,6 +278,16 @@ impl ControlAffine for DoubleIntegrator {
     }
 }
 
+impl Ship {
+    /// ρ = ‖(x₁, x₂)‖ when the wall force acts (ρ ≥ R and moving outward).
+    #[inline]
+    fn wall_active(&self, x: &[f64]) -> Option<f64> {
+        let rho2 = x[0] * x[0] + x[1] * x[1];
+        let r = self.params.radius;
+        (rho2 >= r * r && x[0] * x[2] + x[1] * x[3] >= 0.0).then(|| rho2.sqrt())
+    }
+}
+
 /// The ship as the controller sees it: f0 = (v, wall(q, v)), G = [0; I₂],
 /// Q = e I₂ (velocity noise only; the position noise is not of the form (7)
 /// and is left out of the controller's model).
@@ -296,21 +305,38 @@ impl ControlAffine for Ship {
         PathStructure::SecondOrder
     }
     fn drift0(&self, x: &[f64], f: &mut [f64]) {
-        let (f1, f2) = self.wall_force(x);
         f[0] = x[2];
         f[1] = x[3];
-        f[2] = f1;
-        f[3] = f2;
+        f[2] = 0.0;
+        f[3] = 0.0;
+        // The wall force of `Ship::wall_force`, with ρ² compared first.
+        if let Some(rho) = self.wall_active(x) {
+            let k = -self.params.wall_gain / rho;
+            f[2] = k * x[0];
+            f[3] = k * x[1];
+        }
     }
     fn drift0_jacobian(&self, x: &[f64], jac: &mut [f64]) {
-        self.drift_jacobian(x, &[0.0, 0.0], jac);
+        jac[..16].fill(0.0);
+        jac[8] = 1.0; // ∂f1/∂x3
+        jac[13] = 1.0; // ∂f2/∂x4
+        if let Some(rho) = self.wall_active(x) {
+            // ∂f_i/∂x_j = −K (δ_ij/ρ − x_i x_j/ρ³), i, j ∈ {1, 2}.
+            let k = self.params.wall_gain;
+            let r3 = rho * rho * rho;
+            for i in 0..2 {
+                for j in 0..2 {
+                    let delta = if i == j { 1.0 } else { 0.0 };
+                    jac[(i + 2) + j * 4] = -k * (delta / rho - x[i] * x[j] / r3);
+                }
+            }
+        }
     }
     fn drift0_curvature(&self, x: &[f64], w: &[f64], out: &mut [f64]) {
         out[..16].fill(0.0);
-        let rho = x[0].hypot(x[1]);
-        if !(rho >= self.params.radius && x[0] * x[2] + x[1] * x[3] >= 0.0) {
+        let Some(rho) = self.wall_active(x) else {
             return;
-        }
+        };
         // a_i = −K q_i/ρ: ∂²a_i/∂q_j∂q_l = −K(−(δ_ij q_l + δ_il q_j + δ_jl q_i)/ρ³ + 3 q_i q_j q_l/ρ⁵).
         let k = self.params.wall_gain;
         let (r3, r5) = (rho.powi(3), rho.powi(5));
@@ -403,8 +429,26 @@ mod tests {
                 );
             }
         }
-        let mut f = [0.0; 4];
-        ship.drift0(&x, &mut f);
-        assert!((f[2] + 50.0 * 8.0 / x[0].hypot(x[1])).abs() < 1e-12);
+        // drift0 and its Jacobian agree with the SdeModel ones at u = 0.
+        use crate::model::{SdeJacobians, SdeModel};
+        for x in [
+            x,
+            [1.0, 2.0, 0.3, 0.1],
+            [-9.5, 0.5, -1.0, 0.0],
+            [-9.5, 0.5, 1.0, 0.0],
+        ] {
+            let (mut f, mut f_ref) = ([0.0; 4], [0.0; 4]);
+            ship.drift0(&x, &mut f);
+            ship.drift(&x, &[0.0, 0.0], &mut f_ref);
+            let (mut j, mut j_ref) = ([0.0; 16], [0.0; 16]);
+            ship.drift0_jacobian(&x, &mut j);
+            ship.drift_jacobian(&x, &[0.0, 0.0], &mut j_ref);
+            for i in 0..4 {
+                assert!((f[i] - f_ref[i]).abs() < 1e-12);
+            }
+            for i in 0..16 {
+                assert!((j[i] - j_ref[i]).abs() < 1e-12);
+            }
+        }
     }
 }
