@@ -1007,6 +1007,92 @@ mod tests {
         }
     }
 
+    /// E5/E6 for partial noise: log ψ including every constant (Δt^{−N/2},
+    /// (det Σ)^{−n/2} and the Jacobian of the velocity→position change of
+    /// variables) equals the Gaussian integral done directly over the
+    /// velocities v₁..v_n with positions q_i = q_{i−1} + v_{i−1}Δt.
+    #[test]
+    fn second_order_log_psi_equals_the_integral_over_velocities() {
+        let (q, r, dt, n) = (0.7, 0.5, 0.1, 5);
+        let model = double_integrator(q);
+        let cost = DiagonalQuadraticCost::new(&[1.0, 0.2], &[3.0, 1.0]);
+        let mut s = sampler_for(&model, r, dt, n, 4);
+        let gamma = s.setup().gamma;
+        let x = [0.4, -0.8];
+        let e = s
+            .estimate(
+                &model,
+                &cost,
+                &x,
+                n,
+                None,
+                &EstimatorOptions {
+                    samples: 0,
+                    ..EstimatorOptions::default()
+                },
+                &mut crate::rng::stream(1, 1),
+            )
+            .unwrap();
+        // F over velocities, written out directly.
+        let f = |v: &[f64]| {
+            let vv = |i: usize| if i == 0 { x[1] } else { v[i - 1] };
+            let mut qs = vec![x[0]];
+            for i in 1..=n {
+                qs.push(qs[i - 1] + vv(i - 1) * dt);
+            }
+            let pot = |i: usize| 0.5 * qs[i] * qs[i] + 0.5 * 0.2 * vv(i) * vv(i);
+            let mut tot = (1.5 * qs[n] * qs[n] + 0.5 * vv(n) * vv(n)) / gamma;
+            for i in 1..=n {
+                tot += dt / (2.0 * gamma) * (pot(i) + pot(i - 1));
+                tot += (vv(i) - vv(i - 1)).powi(2) / (2.0 * q * q * dt);
+            }
+            tot
+        };
+        // Quadratic: F(v) = c + bᵀv + ½vᵀAv, read off by (exact) differences.
+        let h = 1.0;
+        let zero = vec![0.0; n];
+        let c0 = f(&zero);
+        let mut a = nalgebra::DMatrix::zeros(n, n);
+        let mut b = nalgebra::DVector::zeros(n);
+        for i in 0..n {
+            let mut ei = zero.clone();
+            ei[i] = h;
+            let fp = f(&ei);
+            ei[i] = -h;
+            let fm = f(&ei);
+            b[i] = (fp - fm) / (2.0 * h);
+            a[(i, i)] = (fp - 2.0 * c0 + fm) / (h * h);
+            for j in 0..i {
+                let mut eij = zero.clone();
+                eij[i] = h;
+                eij[j] = h;
+                let fij = f(&eij);
+                eij[i] = 0.0;
+                let fj = f(&eij);
+                let mut ei2 = zero.clone();
+                ei2[i] = h;
+                let fi = f(&ei2);
+                a[(i, j)] = (fij - fi - fj + c0) / (h * h);
+                a[(j, i)] = a[(i, j)];
+            }
+        }
+        let chol = a.clone().cholesky().unwrap();
+        let ainv_b = chol.solve(&b);
+        let log_det_a: f64 = 2.0 * chol.l().diagonal().iter().map(|v| v.ln()).sum::<f64>();
+        let nf = n as f64;
+        let log_integral =
+            -c0 + 0.5 * b.dot(&ainv_b) + 0.5 * nf * (2.0 * std::f64::consts::PI).ln()
+                - 0.5 * log_det_a;
+        let log_psi = log_integral
+            - 0.5 * nf * (2.0 * std::f64::consts::PI * dt).ln()
+            - 0.5 * nf * (q * q).ln();
+        assert!(
+            (e.log_psi - log_psi).abs() < 1e-8,
+            "{} vs {log_psi}",
+            e.log_psi
+        );
+    }
+
     /// Acceptance test: over a long horizon the control approaches the
     /// continuous-time LQR law of ẍ = u with cost ∫ ½(x₁² + u²): K = [1, √2].
     #[test]
