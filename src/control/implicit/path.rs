@@ -113,9 +113,8 @@ pub struct PathSetup {
     /// R⁻¹ (p×p) and G (m×p), column-major.
     pub rinv: [f64; MAX_CONTROL * MAX_CONTROL],
     pub g: [f64; MAX_STATE * MAX_CONTROL],
-    /// Stencil: (s_{i−1}, s_i) = D · (z_i, z_{i−1}, …, z_{i−K−1}); 2m × W.
-    dmat: [f64; 4 * MAX_STATE * MAX_STATE * 3],
-    /// The nonzeros of D as (row, column, value).
+    /// The stencil (s_{i−1}, s_i) = D · (z_i, z_{i−1}, …, z_{i−K−1}) (2m × W)
+    /// as its nonzeros (row, column, value).
     nz: [(u8, u8, f64); 3 * MAX_STATE],
     nnz: usize,
     w: usize,
@@ -171,7 +170,6 @@ impl PathSetup {
             log_det_sigma_b,
             rinv: [0.0; MAX_CONTROL * MAX_CONTROL],
             g: gbuf,
-            dmat: [0.0; 4 * MAX_STATE * MAX_STATE * 3],
             nz: [(0, 0, 0.0); 3 * MAX_STATE],
             nnz: 0,
             w: (k + 2) * b,
@@ -180,8 +178,9 @@ impl PathSetup {
         setup.rinv[..p * p].copy_from_slice(rinv.as_slice());
         // Stencil D (2m × W, column-major, leading dimension 2m).
         let rows = 2 * m;
+        let mut dmat = [0.0; 2 * MAX_STATE * MAX_W];
         let mut put = |row: usize, blk: usize, c: usize, v: f64| {
-            setup.dmat[row + (blk * b + c) * rows] = v;
+            dmat[row + (blk * b + c) * rows] = v;
         };
         match structure {
             PathStructure::Full => {
@@ -205,7 +204,7 @@ impl PathSetup {
         }
         for col in 0..setup.w {
             for row in 0..rows {
-                let v = setup.dmat[row + col * rows];
+                let v = dmat[row + col * rows];
                 if v != 0.0 {
                     setup.nz[setup.nnz] = (row as u8, col as u8, v);
                     setup.nnz += 1;
