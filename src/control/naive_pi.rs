@@ -374,4 +374,49 @@ mod tests {
         );
         assert_eq!(r, Err(NaiveError::NoSurvivors(5000)));
     }
+
+    /// As a controller on ẍ = u with a smooth cost the naive estimate is
+    /// consistent: with many walkers it lands near the path-integral control.
+    #[test]
+    fn naive_controller_is_consistent_on_a_smooth_problem() {
+        use crate::control::implicit::{
+            DiagonalQuadraticCost, EstimatorOptions, PathSampler, PathSetup,
+        };
+        use crate::model::affine::{LinearAffine, PathStructure};
+        let model = LinearAffine {
+            m: 2,
+            p: 1,
+            r: 1,
+            a: vec![0.0, 0.0, 1.0, 0.0],
+            g: vec![0.0, 1.0],
+            q: vec![1.0],
+            structure: PathStructure::SecondOrder,
+        };
+        let cost = DiagonalQuadraticCost::new(&[0.5, 0.1], &[1.0, 0.5]);
+        let (r, dt, n) = (2.0, 0.05, 20);
+        let setup = PathSetup::new(&model, &[r], dt).unwrap();
+        let mut s = PathSampler::new(setup, n, 16, 1);
+        let x = [0.5, -0.2];
+        let exact = s
+            .estimate(
+                &model,
+                &cost,
+                &x,
+                n,
+                None,
+                &EstimatorOptions::default(),
+                &mut crate::rng::stream(1, 2),
+            )
+            .unwrap()
+            .u[0];
+        let mut c = NaivePiController::new(model, cost, r, dt, n, 100_000, 100.0, 3).unwrap();
+        let mut u = [0.0];
+        c.compute(0.0, &Gaussian::diagonal(&x, &[0.0, 0.0]), &mut u)
+            .unwrap();
+        assert!(
+            (u[0] - exact).abs() < 0.1 * exact.abs(),
+            "naive {} vs implicit {exact}",
+            u[0]
+        );
+    }
 }

@@ -497,22 +497,6 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
         );
     }
 
-    /// Hessian without the drift-curvature term (Gauss–Newton in the
-    /// action), always positive semi-definite in the action part.
-    pub fn derivatives_gauss_newton(&self, z: &[f64], g: &mut [f64], h: &mut SymBand) -> f64 {
-        self.pass(
-            z,
-            Outputs {
-                g: Some(g),
-                h: Some(h),
-                ge: None,
-                cross: None,
-                exact: false,
-                last_step: usize::MAX,
-            },
-        )
-    }
-
     /// The derivative pass: accumulate each step's term in (s_{i−1}, s_i)
     /// coordinates, then map to the window of z blocks through the stencil.
     fn pass(&self, z: &[f64], mut out: Outputs) -> f64 {
