@@ -531,6 +531,10 @@ impl<M: SdeModel> Mppi<M> {
 }
 
 impl<M: SdeModel> Controller for Mppi<M> {
+    fn prepare(&mut self) {
+        Mppi::prepare(self)
+    }
+
     fn name(&self) -> &'static str {
         "mppi"
     }

@@ -1,1 +1,14 @@
-//! (filled in by its issue)
+//! Real-time plumbing: the CLOCK_MONOTONIC clock every process shares,
+//! allocation-free latency/compute histograms, per-stage budgets and
+//! deadline-miss accounting, core affinity, scheduling priority and memory
+//! locking (each with a one-line warning and a fallback when not permitted).
+
+pub mod budget;
+pub mod clock;
+pub mod hist;
+pub mod sched;
+
+pub use budget::Budget;
+pub use clock::{Clock, MonotonicClock, SimClock};
+pub use hist::LatencyHist;
+pub use sched::{apply as apply_rt, RtApplied, RtSettings};

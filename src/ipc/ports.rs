@@ -1,0 +1,366 @@
+//! Typed ports: a publisher paired with a notifier, a subscriber paired with
+//! an (optional) listener, over one channel's pub-sub and event services of
+//! the same name.
+
+use super::messages::*;
+use super::IpcError;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::prelude::*;
+use std::fmt::Debug;
+
+/// Quality of service of a channel: identical for every participant, so any
+/// of them may create the service and the others open it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Qos {
+    /// Samples a late subscriber receives on connection.
+    pub history: usize,
+    /// Largest subscriber buffer the service allows.
+    pub max_buffer: usize,
+    /// Buffer of a stage's subscriber (1 = latest value).
+    pub default_buffer: usize,
+    pub max_publishers: usize,
+    pub max_subscribers: usize,
+    pub max_nodes: usize,
+}
+
+mod sealed {
+    pub trait Sealed: iceoryx2::prelude::ZeroCopySend {}
+}
+
+/// A message type bound to its channel. Implemented by the message types of
+/// [`super::messages`] only.
+pub trait Message: sealed::Sealed + Copy + Debug + Default + 'static {
+    /// Channel name (last component of the service name).
+    const CHANNEL: &'static str;
+    /// The channel's QoS.
+    const QOS: Qos;
+    /// The message's header fields.
+    fn header(&self) -> Header;
+}
+
+macro_rules! message {
+    ($t:ty, $channel:literal, $qos:expr, |$m:ident| $header:expr) => {
+        impl sealed::Sealed for $t {}
+        impl Message for $t {
+            const CHANNEL: &'static str = $channel;
+            const QOS: Qos = $qos;
+            fn header(&self) -> Header {
+                let $m = self;
+                $header
+            }
+        }
+    };
+}
+
+// Many publishers (one per sensor), a generous queue: ingest sorts by time.
+message!(
+    SensorSample,
+    "sensor",
+    Qos {
+        history: 0,
+        max_buffer: 256,
+        default_buffer: 64,
+        max_publishers: 16,
+        max_subscribers: 8,
+        max_nodes: 32,
+    },
+    |m| m.header()
+);
+// A small queue: every observation should be filtered, but a stalled filter
+// must not hold back ingest.
+message!(
+    Observation,
+    "obs",
+    Qos {
+        history: 0,
+        max_buffer: 32,
+        default_buffer: 8,
+        max_publishers: 2,
+        max_subscribers: 8,
+        max_nodes: 20,
+    },
+    |m| m.header
+);
+// Latest value; the large max buffer is for the launcher's polling monitor.
+message!(
+    Belief,
+    "belief",
+    Qos {
+        history: 1,
+        max_buffer: 256,
+        default_buffer: 1,
+        max_publishers: 2,
+        max_subscribers: 6,
+        max_nodes: 20,
+    },
+    |m| m.header
+);
+message!(
+    Control,
+    "control",
+    Qos {
+        history: 1,
+        max_buffer: 256,
+        default_buffer: 1,
+        max_publishers: 2,
+        max_subscribers: 6,
+        max_nodes: 20,
+    },
+    |m| m.header
+);
+message!(
+    Truth,
+    "truth",
+    Qos {
+        history: 0,
+        max_buffer: 512,
+        default_buffer: 512,
+        max_publishers: 2,
+        max_subscribers: 4,
+        max_nodes: 20,
+    },
+    |m| m.header
+);
+message!(
+    StageStats,
+    "stats",
+    Qos {
+        history: 0,
+        max_buffer: 64,
+        default_buffer: 64,
+        max_publishers: 16,
+        max_subscribers: 4,
+        max_nodes: 32,
+    },
+    |m| m.header
+);
+
+fn service_name(name: &str) -> Result<ServiceName, IpcError> {
+    ServiceName::new(name).map_err(|e| IpcError::InvalidName {
+        what: "service name",
+        value: name.to_string(),
+        reason: format!("{e:?}"),
+    })
+}
+
+fn pubsub<M: Message>(
+    node: &Node<ipc::Service>,
+    name: &ServiceName,
+) -> Result<
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, M, ()>,
+    IpcError,
+> {
+    let q = M::QOS;
+    node.service_builder(name)
+        .publish_subscribe::<M>()
+        .history_size(q.history)
+        .subscriber_max_buffer_size(q.max_buffer)
+        .enable_safe_overflow(true)
+        .max_publishers(q.max_publishers)
+        .max_subscribers(q.max_subscribers)
+        .max_nodes(q.max_nodes)
+        .open_or_create()
+        .map_err(|e| IpcError::Service {
+            service: name.as_str().to_string(),
+            reason: format!("{e:?}"),
+        })
+}
+
+fn event(
+    node: &Node<ipc::Service>,
+    name: &ServiceName,
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, IpcError> {
+    node.service_builder(name)
+        .event()
+        .open_or_create()
+        .map_err(|e| IpcError::Service {
+            service: format!("{} (event)", name.as_str()),
+            reason: format!("{e:?}"),
+        })
+}
+
+/// Publishes `M` on its channel and wakes the channel's listeners.
+pub struct Publisher<M: Message> {
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, M, ()>,
+    notifier: Notifier<ipc::Service>,
+    service: String,
+    sent: u64,
+    notify_failures: u64,
+}
+
+impl<M: Message> Debug for Publisher<M> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Publisher")
+            .field("service", &self.service)
+            .field("sent", &self.sent)
+            .finish()
+    }
+}
+
+impl<M: Message> Publisher<M> {
+    pub(super) fn open(node: &Node<ipc::Service>, name: &str) -> Result<Self, IpcError> {
+        let sn = service_name(name)?;
+        let port_err = |port, e: String| IpcError::Port {
+            port,
+            service: name.to_string(),
+            reason: e,
+        };
+        let publisher = pubsub::<M>(node, &sn)?
+            .publisher_builder()
+            .create()
+            .map_err(|e| port_err("publisher", format!("{e:?}")))?;
+        let notifier = event(node, &sn)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| port_err("notifier", format!("{e:?}")))?;
+        Ok(Self {
+            publisher,
+            notifier,
+            service: name.to_string(),
+            sent: 0,
+            notify_failures: 0,
+        })
+    }
+
+    /// Send a copy of `msg` to every subscriber, then notify their listeners.
+    /// Never blocks: a full subscriber buffer drops its oldest sample.
+    pub fn publish(&mut self, msg: &M) -> Result<(), IpcError> {
+        self.publisher.send_copy(*msg).map_err(|e| IpcError::Send {
+            service: self.service.clone(),
+            reason: format!("{e:?}"),
+        })?;
+        self.sent += 1;
+        // A failed wake-up is not a failed send: the sample is delivered and
+        // a polling or spinning subscriber still finds it.
+        if self.notifier.notify().is_err() {
+            self.notify_failures += 1;
+        }
+        Ok(())
+    }
+
+    /// Messages sent so far.
+    pub fn sent(&self) -> u64 {
+        self.sent
+    }
+
+    /// Notifications that failed (samples were still delivered).
+    pub fn notify_failures(&self) -> u64 {
+        self.notify_failures
+    }
+
+    /// The service name.
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}
+
+/// Receives `M` from its channel.
+pub struct Subscriber<M: Message> {
+    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, M, ()>,
+    pub(super) listener: Option<Listener<ipc::Service>>,
+    service: String,
+}
+
+impl<M: Message> Debug for Subscriber<M> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Subscriber")
+            .field("service", &self.service)
+            .field("wakes", &self.listener.is_some())
+            .finish()
+    }
+}
+
+impl<M: Message> Subscriber<M> {
+    pub(super) fn open(
+        node: &Node<ipc::Service>,
+        name: &str,
+        buffer: usize,
+        wake: bool,
+    ) -> Result<Self, IpcError> {
+        let sn = service_name(name)?;
+        let port_err = |port, e: String| IpcError::Port {
+            port,
+            service: name.to_string(),
+            reason: e,
+        };
+        let buffer = buffer.clamp(1, M::QOS.max_buffer);
+        let subscriber = pubsub::<M>(node, &sn)?
+            .subscriber_builder()
+            .buffer_size(buffer)
+            .create()
+            .map_err(|e| port_err("subscriber", format!("{e:?}")))?;
+        let listener = if wake {
+            Some(
+                event(node, &sn)?
+                    .listener_builder()
+                    .create()
+                    .map_err(|e| port_err("listener", format!("{e:?}")))?,
+            )
+        } else {
+            None
+        };
+        Ok(Self {
+            subscriber,
+            listener,
+            service: name.to_string(),
+        })
+    }
+
+    fn recv_err(&self, e: impl Debug) -> IpcError {
+        IpcError::Receive {
+            service: self.service.clone(),
+            reason: format!("{e:?}"),
+        }
+    }
+
+    /// The oldest unread message, copied out.
+    pub fn receive(&self) -> Result<Option<M>, IpcError> {
+        match self.subscriber.receive() {
+            Ok(Some(s)) => Ok(Some(*s.payload())),
+            Ok(None) => Ok(None),
+            Err(e) => Err(self.recv_err(e)),
+        }
+    }
+
+    /// Read the oldest unread message in place (no copy) with `f`.
+    pub fn receive_with<R>(&self, f: impl FnOnce(&M) -> R) -> Result<Option<R>, IpcError> {
+        match self.subscriber.receive() {
+            Ok(Some(s)) => Ok(Some(f(s.payload()))),
+            Ok(None) => Ok(None),
+            Err(e) => Err(self.recv_err(e)),
+        }
+    }
+
+    /// The newest unread message; older unread ones are discarded and
+    /// counted in the second element.
+    pub fn latest(&self) -> Result<(Option<M>, u64), IpcError> {
+        let mut last = None;
+        let mut skipped = 0;
+        while let Some(m) = self.receive()? {
+            if last.is_some() {
+                skipped += 1;
+            }
+            last = Some(m);
+        }
+        Ok((last, skipped))
+    }
+
+    /// Whether a message is waiting.
+    pub fn has_data(&self) -> bool {
+        self.subscriber.has_samples().unwrap_or(false)
+    }
+
+    /// Consume pending wake-up notifications (so a WaitSet does not report
+    /// them again).
+    pub fn drain_wakeups(&self) {
+        if let Some(l) = &self.listener {
+            let _ = l.try_wait(|_| {});
+        }
+    }
+
+    /// The service name.
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}

@@ -1,0 +1,114 @@
+//! Clocks. Every stamp on the wire is CLOCK_MONOTONIC nanoseconds: one clock
+//! shared by all processes of a host, never stepped by NTP.
+//!
+//! Stage loops take a [`Clock`] so a test can run the simulated plant on a
+//! [`SimClock`] (time advances only when the loop sleeps: deterministic and
+//! faster than real time) while production uses [`MonotonicClock`].
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// CLOCK_MONOTONIC now, in nanoseconds.
+pub fn now_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes into the timespec we own.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// Sleep until CLOCK_MONOTONIC reaches `t_ns` (absolute, so periodic loops do
+/// not accumulate drift). Returns early on a signal.
+pub fn sleep_until_ns(t_ns: u64) {
+    let ts = libc::timespec {
+        tv_sec: (t_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (t_ns % 1_000_000_000) as libc::c_long,
+    };
+    // SAFETY: plain absolute clock_nanosleep; EINTR simply returns.
+    unsafe {
+        libc::clock_nanosleep(
+            libc::CLOCK_MONOTONIC,
+            libc::TIMER_ABSTIME,
+            &ts,
+            std::ptr::null_mut(),
+        )
+    };
+}
+
+/// A source of time for stage loops.
+pub trait Clock: Send + Sync {
+    /// Now, in nanoseconds on this clock.
+    fn now_ns(&self) -> u64;
+    /// Block until `t_ns` (may return early on a signal).
+    fn sleep_until_ns(&self, t_ns: u64);
+}
+
+/// The real CLOCK_MONOTONIC.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MonotonicClock;
+
+impl Clock for MonotonicClock {
+    fn now_ns(&self) -> u64 {
+        now_ns()
+    }
+    fn sleep_until_ns(&self, t_ns: u64) {
+        sleep_until_ns(t_ns)
+    }
+}
+
+/// Simulated time: `now` only moves when someone sleeps (or calls
+/// [`SimClock::advance`]).
+#[derive(Debug)]
+pub struct SimClock {
+    now: AtomicU64,
+}
+
+impl SimClock {
+    /// A clock reading `start_ns`.
+    pub fn new(start_ns: u64) -> Self {
+        Self {
+            now: AtomicU64::new(start_ns),
+        }
+    }
+    /// Move time forward by `dt_ns`.
+    pub fn advance(&self, dt_ns: u64) {
+        self.now.fetch_add(dt_ns, Ordering::SeqCst);
+    }
+}
+
+impl Clock for SimClock {
+    fn now_ns(&self) -> u64 {
+        self.now.load(Ordering::SeqCst)
+    }
+    fn sleep_until_ns(&self, t_ns: u64) {
+        self.now.fetch_max(t_ns, Ordering::SeqCst);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn monotonic_clock_moves_forward_and_sleeps_until_the_deadline() {
+        let c = MonotonicClock;
+        let a = c.now_ns();
+        let target = a + 2_000_000;
+        c.sleep_until_ns(target);
+        let b = c.now_ns();
+        assert!(b >= target, "woke {} ns early", target - b);
+    }
+
+    #[test]
+    fn sim_clock_advances_only_on_sleep() {
+        let c = SimClock::new(10);
+        assert_eq!(c.now_ns(), 10);
+        c.sleep_until_ns(5);
+        assert_eq!(c.now_ns(), 10);
+        c.sleep_until_ns(1_000);
+        assert_eq!(c.now_ns(), 1_000);
+        c.advance(24);
+        assert_eq!(c.now_ns(), 1_024);
+    }
+}
