@@ -6,12 +6,17 @@
 //! (`{"experiment", "params", "results": [{"method", <metric>...}], "paper": [...]}`),
 //! and prints the same numbers as a table.
 
+pub mod arm;
 pub mod chain_util;
 pub mod convergence;
 pub mod decoding;
+pub mod double_slit;
+pub mod himmelblau;
 pub mod param_estimation;
+pub mod pi_common;
 pub mod report;
 pub mod ship;
+pub mod ship_control;
 pub mod smoothing;
 pub mod vanderpol;
 
@@ -82,6 +87,26 @@ pub fn all() -> Vec<Experiment> {
             name: "decoding",
             about: "MAP trajectory decoding on chains (thesis Alg. 3.2, paper 001 Fig. 6) vs exact RTS",
             run: decoding::run,
+        },
+        Experiment {
+            name: "double-slit",
+            about: "paper 003 Table 2: implicit-sampling path-integral control of the double slit vs the analytic solution and naive MC",
+            run: double_slit::run,
+        },
+        Experiment {
+            name: "himmelblau",
+            about: "paper 003 Table 4: minimising Himmelblau's function by stochastic optimal control vs undamped Newton",
+            run: himmelblau::run,
+        },
+        Experiment {
+            name: "arm",
+            about: "paper 003 Fig. 4: path-integral control of the two-link arm with a wrong payload (m1 = 1.4) vs the exact optimal controller",
+            run: arm::run,
+        },
+        Experiment {
+            name: "ship-control",
+            about: "closed-loop ship: implicit path-integral control vs MPPI-2048/512, cost and compute per control",
+            run: ship_control::run,
         },
     ]
 }
