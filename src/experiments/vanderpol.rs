@@ -62,6 +62,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         &["predictive", "uniform"],
     )?;
     let uniform_fraction = p.f64(&mut rep, "uniform_fraction", 0.1)?;
+    let kappa_drift = p.f64(&mut rep, "kappa_drift", 2.0)?;
     p.finish()?;
     rep.param("mu", 2.0);
     rep.param("prior", "N((0.5, 0), 0.2^2 I)");
@@ -92,6 +93,9 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             ChainConfig::moment_matched(2)
         };
         cfg.near = crate::chain::NearRule::Knn { c: c_knn };
+        if kernel != "gaussian" {
+            cfg.kappa_drift = kappa_drift;
+        }
         let t0 = std::time::Instant::now();
         let mut rng = stream(args.seed, 9_000 + n as u64);
         let pts = if sampling == "uniform" {

@@ -628,6 +628,62 @@ mod tests {
     }
 
     #[test]
+    fn control_tilt_follows_the_controlled_kalman_answer() {
+        // dx = (−x + u) dt + 0.5 dw, y = x + 0.2 v; chain built for u₀ = 0,
+        // filtered with u = 1.5 held: the tilted kernel must carry the
+        // control's drift (the uncontrolled answer is ≈ 1.5 away).
+        let model = LinearSde::new(
+            "ctl",
+            DMatrix::from_element(1, 1, -1.0),
+            DMatrix::from_element(1, 1, 1.0),
+            DMatrix::from_element(1, 1, 0.5),
+            DMatrix::from_element(1, 1, 1.0),
+            vec![0.5],
+            Bounds::new_box(&[-4.0], &[4.0]).unwrap(),
+        );
+        let dt = 0.05;
+        let prior = Gaussian::diagonal(&[0.0], &[0.3]);
+        let mut cf = ChainFilter::from_samples(
+            model.clone(),
+            ChainConfig::moment_matched(1),
+            &Sampler::Uniform,
+            1500,
+            dt,
+            &mut crate::rng::stream(3, 1),
+        )
+        .unwrap();
+        cf.reset(0.0, &prior);
+        let mut kf = Kalman::new(model.clone(), &prior, 0.0).unwrap();
+        let mut k0 = Kalman::new(model.clone(), &prior, 0.0).unwrap();
+        let mut rng = crate::rng::stream(3, 0);
+        let mut x = [0.0];
+        let u = [1.5];
+        let (mut gap, mut gap0) = (0.0f64, 0.0f64);
+        for k in 1..=60 {
+            let t = k as f64 * dt;
+            crate::model::discrete::em_integrate(&model, &mut x, &u, dt, 1e-3, &mut rng);
+            let mut y = [0.0];
+            simulate_observation(&model, &x, &mut rng, &mut y);
+            cf.predict(t, &u).unwrap();
+            kf.predict(t, &u).unwrap();
+            k0.predict(t, &[0.0]).unwrap();
+            for f in [&mut cf as &mut dyn BayesFilter, &mut kf, &mut k0] {
+                f.update(&Measurement::full(&y)).unwrap();
+            }
+            gap = gap.max((cf.belief().mean[0] - kf.belief().mean[0]).abs());
+            gap0 = gap0.max((k0.belief().mean[0] - kf.belief().mean[0]).abs());
+        }
+        eprintln!("tilted chain vs Kalman {gap:.4}, uncontrolled Kalman vs Kalman {gap0:.4}");
+        assert!(gap0 > 0.2, "control must matter: {gap0}");
+        assert!(
+            gap < 0.25 * gap0,
+            "tilted chain vs Kalman: {gap} (uncontrolled {gap0})"
+        );
+        // back to u₀: the untilted kernel is restored
+        cf.predict(3.1, &[0.0]).unwrap();
+    }
+
+    #[test]
     fn converges_to_kalman_as_n_grows() {
         let mut last = (f64::INFINITY, f64::INFINITY);
         for n in [300usize, 3000, 30000] {
