@@ -49,7 +49,7 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
     rep.param("samples", samples);
     rep.param("r", r);
     rep.param("sigma", sigma);
-    rep.param("gamma", gamma);
+    rep.param("gamma", format!("{gamma:.3e}"));
     rep.param("dt", dt);
     rep.param("t_final", t_final);
     rep.param("start", "(-1, -4)");

@@ -7,8 +7,9 @@
 //! step the controller gets the true state (`belief=truth`, default) or a
 //! noisy Gaussian belief (`belief=noisy`: mean = truth + N(0, diag(0.1², 0.1²,
 //! 0.05², 0.05²)), that covariance) and returns the force held over Δ. The
-//! route is [`WaypointTracker`]'s: waypoints (5,0) → (0,5) → (−5,0) → (0,−5),
-//! reach radius 0.5, no cycling (the last one is held). All controllers share
+//! route is `configs/default.toml`'s, tracked by [`WaypointTracker`]:
+//! (5,5) → (−5,5) → (−5,−5) → (5,−5), reach radius 1, from (3, 0) at rest,
+//! without cycling (the last waypoint is held). All controllers share
 //! the tracking cost (q = (1,1,0.1,0.1), q_f = (10,10,1,1), barrier at
 //! radius 8, weight 100), the horizon (50 × 0.04 s), the control limits ±3
 //! and the control weight (MPPI's r‖u‖² with r = 0.05 is ½uᵀRu with R = 0.1
@@ -101,8 +102,8 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
     let params = ShipParams::paper(dt);
     let ship = Ship::new(params.clone()).map_err(anyhow::Error::msg)?;
     let route = RouteConfig {
-        waypoints: vec![[5.0, 0.0], [0.0, 5.0], [-5.0, 0.0], [0.0, -5.0]],
-        reach_radius: 0.5,
+        waypoints: vec![[5.0, 5.0], [-5.0, 5.0], [-5.0, -5.0], [5.0, -5.0]],
+        reach_radius: 1.0,
         cycle: false,
     };
     let mppi_cfg = MppiConfig::default();
@@ -198,7 +199,7 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
             let mut sense = rng::stream(args.seed, 0x4245_0000 + run as u64);
             let mut tracker = WaypointTracker::new(route.clone());
             let mut cost = ship_cost();
-            let mut x = [-2.0, -2.0, 0.0, 0.0];
+            let mut x = [3.0, 0.0, 0.0, 0.0];
             let goal = |g: [f64; 2]| [g[0], g[1], 0.0, 0.0];
             cost.set_goal(&goal(tracker.goal()));
             ctl.as_controller().set_goal(&goal(tracker.goal()));

@@ -342,6 +342,13 @@ impl PathSampler {
         if n_comp == 0 || n_comp > self.cap_components {
             return Err(EstimateError::Capacity("components"));
         }
+        if gate.is_some() && opts.map == MapKind::Random {
+            // At a pinned minimum ∇F ≠ 0 and F − φ is not monotone along
+            // every ray: the random map would not be one-to-one.
+            return Err(EstimateError::Unsupported(
+                "the random map does not support gates; use the linear map",
+            ));
+        }
         let analytic = matches!(opts.gradient, GradientMethod::Analytic);
         if analytic
             && (opts.map == MapKind::Random
