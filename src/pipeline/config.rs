@@ -252,6 +252,12 @@ pub struct ControlConfig {
     pub cost: Option<CostConfig>,
     #[serde(default)]
     pub mppi: MppiConfig,
+    /// Freshest-data policy: a belief older than this (µs since it was
+    /// published) when the controller gets to it is skipped and counted as
+    /// dropped, so a controller slower than the sensor computes on fresh
+    /// beliefs only (0: compute on every latest belief).
+    #[serde(default)]
+    pub max_belief_age_us: f64,
 }
 
 /// `[refine]`: the anytime chain refinement (issue 4 fills it in).
@@ -698,6 +704,12 @@ impl PipelineConfig {
 
     fn validate_control(&self, model: &AnyModel) -> Result<(), ConfigError> {
         let c = &self.control;
+        if !(c.max_belief_age_us.is_finite() && c.max_belief_age_us >= 0.0) {
+            return Err(ConfigError::new(
+                "control.max_belief_age_us",
+                "must be >= 0",
+            ));
+        }
         if c.backend == ControlBackend::None {
             return Ok(());
         }
