@@ -330,6 +330,10 @@ fn drive(
         }
         std::thread::sleep(Duration::from_millis(2));
     }
+    // Let every waiting stage connect to the publishers that appeared after
+    // it (they refresh their connections when idle), so no first sample is
+    // lost.
+    std::thread::sleep(3 * ipc::STOP_POLL);
     stages.push(spawn(StageKind::Plant, opts, prefix, notes)?);
     let t0 = Instant::now();
     let duration = (cfg.run.duration_s > 0.0).then(|| Duration::from_secs_f64(cfg.run.duration_s));
