@@ -115,11 +115,11 @@ fn spawn(
 ) -> Result<Stage> {
     let (mut cmd, own) = stage_command(kind)?;
     if !own {
-        notes.push(format!(
-            "beliefbus-{} next to this executable is missing or from another build; running it as `beliefbus stage {}`",
-            kind.name(),
-            kind.name()
-        ));
+        let n = "stage executables next to beliefbus are missing or from another build \
+                 (`cargo run` builds only beliefbus); ran the stages as `beliefbus stage <name>`";
+        if !notes.iter().any(|x| x == n) {
+            notes.push(n.to_string());
+        }
     }
     cmd.arg(&opts.config).arg("--prefix").arg(prefix);
     for s in &opts.sets {
