@@ -19,6 +19,7 @@ use crate::control::mppi::MppiConfig;
 use crate::control::waypoints::RouteConfig;
 use crate::filter::ekf::EkfConfig;
 use crate::filter::pf::PfConfig;
+use crate::filter::ukf::UkfConfig;
 use crate::ipc::{StageKind, WakeMode};
 use crate::model::ship::ShipParams;
 use crate::model::vanderpol::VanDerPolParams;
@@ -182,6 +183,7 @@ impl Default for IngestConfig {
 pub enum FilterBackend {
     Pf,
     Ekf,
+    Ukf,
 }
 
 impl FilterBackend {
@@ -189,6 +191,7 @@ impl FilterBackend {
         match self {
             FilterBackend::Pf => "pf",
             FilterBackend::Ekf => "ekf",
+            FilterBackend::Ukf => "ukf",
         }
     }
 }
@@ -206,6 +209,8 @@ pub struct FilterConfig {
     pub pf: PfConfig,
     #[serde(default)]
     pub ekf: EkfConfig,
+    #[serde(default)]
+    pub ukf: UkfConfig,
 }
 
 /// Controller backends.
@@ -677,6 +682,9 @@ impl PipelineConfig {
         f.ekf
             .validate()
             .map_err(|e| ConfigError::new(format!("filter.ekf.{}", e.key), e.problem))?;
+        f.ukf
+            .validate(dims.state)
+            .map_err(|e| ConfigError::new(format!("filter.ukf.{}", e.key), e.problem))?;
 
         self.validate_control(&model)?;
 

@@ -243,7 +243,7 @@ fn ship_observations(cfg: &PipelineConfig, n: usize, t0: u64) -> Vec<(Observatio
 
 #[test]
 fn filter_loop_publishes_one_belief_per_observation_and_tracks_the_ship() {
-    for backend in ["pf", "ekf"] {
+    for backend in ["pf", "ekf", "ukf"] {
         let cfg = test_config(&[
             &format!("filter.backend={backend}"),
             "filter.pf.particles=500",
