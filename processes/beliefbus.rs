@@ -1,5 +1,7 @@
 //! `beliefbus`: the user-facing command. Subcommands: `run` (the launcher,
-//! issue 2) and `experiment` (paper reproductions).
+//! issue 2) and `experiment` (paper reproductions); the hidden `stage NAME`
+//! runs one stage in this process (the launcher's fallback when the stage
+//! executables next to it are missing or from another build).
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -85,44 +87,44 @@ fn main() {
             std::process::exit(0);
         }
     };
-    if let Command::Run {
-        config,
-        duration,
-        report,
-        sets,
-        quiet,
-    } = &cli.command
-    {
-        let opts = beliefbus::pipeline::launcher::RunOptions {
-            config: config.clone(),
-            duration_s: *duration,
-            report: report.clone(),
-            sets: sets.clone(),
-            quiet: *quiet,
-        };
-        std::process::exit(beliefbus::pipeline::launcher::main(&opts));
-    }
-    if let Command::Stage { name, args } = &cli.command {
-        let Some(kind) = beliefbus::ipc::StageKind::from_name(name) else {
-            eprintln!("unknown stage '{name}'");
-            std::process::exit(2);
-        };
-        let argv = std::iter::once(format!("beliefbus-{name}")).chain(args.iter().cloned());
-        std::process::exit(beliefbus::pipeline::stage_main::main_with(kind, argv));
-    }
-    let code = match run(cli) {
-        Ok(()) => 0,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            1
-        }
+    let code = match cli.command {
+        Command::Run {
+            config,
+            duration,
+            report,
+            sets,
+            quiet,
+        } => beliefbus::pipeline::launcher::main(&beliefbus::pipeline::launcher::RunOptions {
+            config,
+            duration_s: duration,
+            report,
+            sets,
+            quiet,
+        }),
+        Command::Stage { name, args } => match beliefbus::ipc::StageKind::from_name(&name) {
+            Some(kind) => {
+                let argv = std::iter::once(format!("beliefbus-{name}")).chain(args);
+                beliefbus::pipeline::stage_main::main_with(kind, argv)
+            }
+            None => {
+                eprintln!("unknown stage '{name}'");
+                2
+            }
+        },
+        experiment => match run_experiment(experiment) {
+            Ok(()) => 0,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                1
+            }
+        },
     };
     std::process::exit(code);
 }
 
-fn run(cli: Cli) -> Result<()> {
-    match cli.command {
-        Command::Run { .. } | Command::Stage { .. } => unreachable!("handled in main"),
+fn run_experiment(command: Command) -> Result<()> {
+    match command {
+        Command::Run { .. } | Command::Stage { .. } => Ok(()),
         Command::Experiment {
             name,
             list,
