@@ -99,8 +99,17 @@ where
     // Started by hand (no launcher owns the prefix): the last stage out
     // removes what the prefix left (nothing is removed while any node of
     // it is alive).
+    // Stages stopped together (Ctrl-C in their terminal) see each other
+    // alive for a moment, so wait briefly for the others to go.
     if args.prefix.is_none() {
-        let _ = ipc::cleanup::remove_prefix(&cfg.run.prefix);
+        let deadline = std::time::Instant::now() + std::time::Duration::from_millis(300);
+        loop {
+            match ipc::cleanup::remove_prefix(&cfg.run.prefix) {
+                Ok(r) if r.alive_nodes == 0 => break,
+                _ if std::time::Instant::now() > deadline => break,
+                _ => std::thread::sleep(std::time::Duration::from_millis(20)),
+            }
+        }
     }
     code
 }
