@@ -337,3 +337,56 @@ fn rust_controls_reach_the_python_actuator_intact() {
         assert_eq!(v["summary"]["received"], n);
     }
 }
+
+/// The Python quick-start of `docs/sensor-abi.md`, as printed there, with
+/// the test's prefix and a shorter loop.
+fn doc_quick_start(prefix: &str, instance: &str, n: usize) -> String {
+    let doc = std::fs::read_to_string(root().join("docs/sensor-abi.md")).unwrap();
+    let start = doc.find("```python\n").expect("a python block") + "```python\n".len();
+    let end = start + doc[start..].find("```").unwrap();
+    let code = &doc[start..end];
+    let settings = r#"PREFIX, INSTANCE, CHANNEL = "iox2_beliefbus_", "ship", 0"#;
+    assert!(code.contains(settings), "quick start settings line changed");
+    assert!(code.contains("range(1000)"), "quick start loop changed");
+    code.replace(
+        settings,
+        &format!(r#"PREFIX, INSTANCE, CHANNEL = "{prefix}", "{instance}", 0"#),
+    )
+    .replace("range(1000)", &format!("range({n})"))
+}
+
+#[test]
+fn the_documented_python_quick_start_works_as_printed() {
+    let Some(py) = python("the_documented_python_quick_start_works_as_printed") else {
+        return;
+    };
+    let prefix = TestPrefix::new();
+    {
+        let n = 30;
+        let code = doc_quick_start(&prefix.0, "abi", n);
+        let b = bus(&prefix, "ingest");
+        let sub = b.subscriber_with::<SensorSample>(256, true).unwrap();
+        let mut c = ChildGuard::spawn(std::process::Command::new(&py).args(["-c", &code]));
+        let mut got = Vec::new();
+        let _ = poll(Duration::from_secs(30), || {
+            while let Some(s) = sub.receive().unwrap() {
+                got.push(s);
+            }
+            (got.len() >= n).then_some(())
+        });
+        let status = c.finish(Duration::from_secs(30));
+        assert!(status.is_some_and(|s| s.success()), "{}", c.show());
+        assert_eq!(got.len(), n, "{}", c.show());
+        let mut last_t = 0;
+        for (k, s) in got.iter().enumerate() {
+            let (x, y) = (3.0 + 0.01 * k as f64, 1.0f64);
+            assert_eq!((s.seq, s.channel, s.dim, s.flags), (k as u64, 0, 2, 0));
+            assert!((s.values[0] - x.hypot(y)).abs() < 1e-12);
+            assert!((s.values[1] - y.atan2(x)).abs() < 1e-12);
+            assert!(s.t_meas_ns > last_t && s.t_pub_ns >= s.t_meas_ns);
+            // Stamped on this host's CLOCK_MONOTONIC: no later than now.
+            assert!(s.t_pub_ns <= beliefbus::ipc::sensor_api::monotonic_now_ns());
+            last_t = s.t_meas_ns;
+        }
+    }
+}

@@ -24,7 +24,7 @@ MAX_OBS = 8
 MAX_CONTROL = 4
 SENSOR_FLAG_NOISE_STD = 1
 DEFAULT_PREFIX = "iox2_beliefbus_"
-DEFAULT_INSTANCE = "beliefbus"
+DEFAULT_INSTANCE = "ship"
 
 
 class SensorSample(ctypes.Structure):

@@ -126,7 +126,7 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=100.0, help="samples per second")
     ap.add_argument("--duration", type=float, default=10.0, help="seconds to publish")
     ap.add_argument("--integration-dt", type=float, default=1e-3, help="simulation step (s)")
-    ap.add_argument("--initial-state", type=float, nargs=4, default=[3.0, 0.0, 0.0, 1.0])
+    ap.add_argument("--initial-state", type=float, nargs=4, default=[3.0, 0.0, 0.0, 0.0])
     ap.add_argument("--noise-std", type=float, default=None, help="range and bearing sigma (default 0.03/sqrt(1/rate))")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--truth", action="store_true", help="also publish Truth for the run's accuracy figures")

@@ -27,7 +27,7 @@ struct Args {
     #[arg(long, default_value = "iox2_beliefbus_")]
     prefix: String,
     /// Pipeline instance (`run.instance` of the config).
-    #[arg(long, default_value = "beliefbus")]
+    #[arg(long, default_value = "ship")]
     instance: String,
     /// Sensor channel id.
     #[arg(long, default_value_t = 0)]
@@ -42,7 +42,7 @@ struct Args {
     #[arg(long, default_value_t = 1e-3)]
     integration_dt: f64,
     /// Initial true state x1 x2 x3 x4.
-    #[arg(long, num_args = 4, default_values_t = [3.0, 0.0, 0.0, 1.0])]
+    #[arg(long, num_args = 4, default_values_t = [3.0, 0.0, 0.0, 0.0])]
     initial_state: Vec<f64>,
     /// Random seed.
     #[arg(long, default_value_t = 1)]
