@@ -245,8 +245,8 @@ mod tests {
     #[test]
     fn the_window_bounds_the_wait_and_late_samples_are_refused() {
         let mut b = ReorderBuffer::new(&[1, 2], 16, 5 * MS, 500 * MS);
-        b.push(&obs(2, 1 * MS), 1 * MS).unwrap();
-        drain(&mut b, 1 * MS);
+        b.push(&obs(2, MS), MS).unwrap();
+        drain(&mut b, MS);
         b.push(&obs(1, 10 * MS), 10 * MS).unwrap();
         // Channel 2 (last at 1 ms) holds it back until the window expires.
         assert_eq!(drain(&mut b, 14 * MS), vec![]);
@@ -268,8 +268,8 @@ mod tests {
     #[test]
     fn a_silent_channel_stops_holding_the_others_back() {
         let mut b = ReorderBuffer::new(&[1, 2], 16, 100 * MS, 50 * MS);
-        b.push(&obs(2, 1 * MS), 1 * MS).unwrap();
-        drain(&mut b, 1 * MS);
+        b.push(&obs(2, MS), MS).unwrap();
+        drain(&mut b, MS);
         b.push(&obs(1, 40 * MS), 40 * MS).unwrap();
         assert_eq!(drain(&mut b, 40 * MS), vec![], "channel 2 still active");
         b.push(&obs(1, 60 * MS), 60 * MS).unwrap();
@@ -280,8 +280,8 @@ mod tests {
     #[test]
     fn a_full_buffer_releases_the_oldest() {
         let mut b = ReorderBuffer::new(&[1, 2], 3, 1_000 * MS, 1_000 * MS);
-        b.push(&obs(2, 1 * MS), 1 * MS).unwrap();
-        drain(&mut b, 1 * MS);
+        b.push(&obs(2, MS), MS).unwrap();
+        drain(&mut b, MS);
         for k in 0..3u64 {
             b.push(&obs(1, (10 + k) * MS), 10 * MS).unwrap();
             assert_eq!(drain(&mut b, 10 * MS), vec![]);

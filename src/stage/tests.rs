@@ -212,7 +212,7 @@ fn ingest_merges_two_channels_in_measurement_order() {
     let ms = 1_000_000u64;
     let t0 = MonotonicClock.now_ns();
     let mut recv = Vec::new();
-    let mut take = |recv: &mut Vec<Observation>| {
+    let take = |recv: &mut Vec<Observation>| {
         while let Some(o) = obs.receive().unwrap() {
             recv.push(o);
         }
