@@ -22,6 +22,7 @@
 pub mod cleanup;
 pub mod messages;
 mod ports;
+pub mod sensor_api;
 mod signals;
 mod wait;
 

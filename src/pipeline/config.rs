@@ -162,6 +162,14 @@ pub struct IngestConfig {
     /// Channel map; empty: channel `plant.channel` carries every component.
     #[serde(default)]
     pub channels: Vec<ChannelConfig>,
+    /// Longest time an observation is held to merge several channels in
+    /// measurement-time order (ms); irrelevant with one channel.
+    #[serde(default = "default_reorder_window")]
+    pub reorder_window_ms: f64,
+}
+
+fn default_reorder_window() -> f64 {
+    20.0
 }
 
 fn default_max_age() -> f64 {
@@ -173,6 +181,7 @@ impl Default for IngestConfig {
         Self {
             max_age_s: default_max_age(),
             channels: Vec::new(),
+            reorder_window_ms: default_reorder_window(),
         }
     }
 }
@@ -628,6 +637,13 @@ impl PipelineConfig {
         finite_all("plant.initial_state", &p.initial_state)?;
 
         positive("ingest.max_age_s", self.ingest.max_age_s)?;
+        let w = self.ingest.reorder_window_ms;
+        if !(w.is_finite() && w >= 0.0 && w <= self.ingest.max_age_s * 1e3) {
+            return Err(ConfigError::new(
+                "ingest.reorder_window_ms",
+                format!("must be >= 0 and at most ingest.max_age_s, got {w}"),
+            ));
+        }
         let channels = self.channels(dims.obs);
         for (i, c) in channels.iter().enumerate() {
             let key = format!("ingest.channels[{i}]");
