@@ -23,11 +23,13 @@ pub mod cleanup;
 pub mod messages;
 mod ports;
 mod signals;
+mod slice;
 mod wait;
 
 pub use messages::*;
 pub use ports::{Message, Publisher, Qos, Subscriber};
 pub use signals::install_stop_handler;
+pub use slice::{SliceElem, SlicePublisher, SliceQos, SliceSubscriber};
 pub use wait::{run_loop, Wake, WakeMode, Wakeable};
 
 use iceoryx2::prelude::*;
