@@ -94,13 +94,55 @@ pub struct CoreTimer {
     pub jitter_log: Option<HdrLog>,
 }
 
+/// One filled pair of interval histograms (wake-up latency, period
+/// jitter) on its way to the log writer, with its start and length.
+type Interval = (Duration, Duration, [LatencyHist; 2]);
+
+/// The timer thread's end of the log writer: full intervals out, empty
+/// histograms back (a small pool, so the timer thread never allocates,
+/// serialises or blocks — a late writer only makes an interval longer).
+struct IntervalTx {
+    full: crossbeam::channel::Sender<Interval>,
+    empty: crossbeam::channel::Receiver<[LatencyHist; 2]>,
+}
+
+/// Histogram pairs in flight per core.
+const POOL: usize = 4;
+/// Length of a log interval.
+const IV_NS: u64 = 1_000_000_000;
+
+/// Write intervals into the two logs until the timer thread hangs up.
+fn log_writer(
+    mut logs: [HdrLog; 2],
+    full: crossbeam::channel::Receiver<Interval>,
+    empty: crossbeam::channel::Sender<[LatencyHist; 2]>,
+) -> Result<[HdrLog; 2], LatencyError> {
+    let mut err = None;
+    for (a, d, mut pair) in full {
+        for (log, h) in logs.iter_mut().zip(pair.iter_mut()) {
+            if let Err(e) = log.add(h, a, d) {
+                err.get_or_insert(e);
+            }
+            h.reset();
+        }
+        let _ = empty.send(pair);
+    }
+    match err {
+        Some(e) => Err(LatencyError::Output {
+            path: "hdr log".into(),
+            reason: e.to_string(),
+        }),
+        None => Ok(logs),
+    }
+}
+
 fn timer_thread(
     cfg: &TimerConfig,
     core: usize,
     start_ns: u64,
-    start_wall: SystemTime,
     stop: &AtomicBool,
-) -> Result<CoreTimer, LatencyError> {
+    logs: Option<IntervalTx>,
+) -> CoreTimer {
     let mut warnings = Vec::new();
     if let Err(e) = sched::pin_to_core(core) {
         warnings.push(format!("timer core {core}: cannot pin ({e})"));
@@ -114,21 +156,6 @@ fn timer_thread(
             )),
         }
     }
-    let log = |what: &str| -> Result<Option<HdrLog>, LatencyError> {
-        if !cfg.hdr_logs {
-            return Ok(None);
-        }
-        let c = [format!(
-            "beliefbus jitter: timer {what}, core {core}, {} Hz, fifo {fifo}",
-            cfg.rate_hz
-        )];
-        HdrLog::new(start_wall, &c)
-            .map(Some)
-            .map_err(|e| LatencyError::Output {
-                path: "hdr log".into(),
-                reason: e.to_string(),
-            })
-    };
     let mut out = CoreTimer {
         core,
         fifo,
@@ -137,17 +164,31 @@ fn timer_thread(
         misses: 0,
         wakeups: 0,
         warnings,
-        wake_log: log("wake-up latency")?,
-        jitter_log: log("period jitter")?,
+        wake_log: None,
+        jitter_log: None,
     };
-    let mut iv_wake = LatencyHist::new();
-    let mut iv_jit = LatencyHist::new();
+    let mut iv = [LatencyHist::new(), LatencyHist::new()];
     let t_ns = cfg.period_ns();
     let end_ns = start_ns + cfg.duration.as_nanos() as u64;
     let mut next = start_ns + t_ns;
     let mut prev_wake: Option<u64> = None;
     let mut iv_start = start_ns;
-    const IV_NS: u64 = 1_000_000_000;
+    // Hand the interval's pair to the writer if a fresh pair is at hand;
+    // otherwise keep recording into this one (the interval grows).
+    let flush = |iv: &mut [LatencyHist; 2], from: u64, to: u64| -> bool {
+        let Some(l) = &logs else {
+            return false;
+        };
+        let Ok(fresh) = l.empty.try_recv() else {
+            return false;
+        };
+        let pair = std::mem::replace(iv, fresh);
+        let at = Duration::from_nanos(from - start_ns);
+        let len = Duration::from_nanos(to - from);
+        // The channel holds every pair there is, so this never fails.
+        let _ = l.full.try_send((at, len, pair));
+        true
+    };
     while next <= end_ns && !stop.load(Ordering::Relaxed) {
         sleep_until_ns(next);
         let t = now_ns();
@@ -156,12 +197,12 @@ fn timer_thread(
         }
         let lat = t - next;
         out.wake.record(lat);
-        iv_wake.record(lat);
+        iv[0].record(lat);
         out.wakeups += 1;
         if let Some(pw) = prev_wake {
             let j = (t - pw).abs_diff(t_ns);
             out.period_jitter.record(j);
-            iv_jit.record(j);
+            iv[1].record(j);
         }
         prev_wake = Some(t);
         next += t_ns;
@@ -171,43 +212,21 @@ fn timer_thread(
             out.misses += (next <= end_ns) as u64;
             next += t_ns;
         }
-        if t - iv_start >= IV_NS {
-            let (a, d) = (
-                Duration::from_nanos(iv_start - start_ns),
-                Duration::from_nanos(t - iv_start),
-            );
-            for (log, h) in [
-                (&mut out.wake_log, &mut iv_wake),
-                (&mut out.jitter_log, &mut iv_jit),
-            ] {
-                if let Some(l) = log {
-                    l.add(h, a, d).map_err(|e| LatencyError::Output {
-                        path: "hdr log".into(),
-                        reason: e.to_string(),
-                    })?;
-                }
-                h.reset();
-            }
+        if t - iv_start >= IV_NS && flush(&mut iv, iv_start, t) {
             iv_start = t;
         }
     }
-    let t = now_ns();
-    let (a, d) = (
-        Duration::from_nanos(iv_start - start_ns),
-        Duration::from_nanos(t.saturating_sub(iv_start)),
-    );
-    for (log, h) in [
-        (&mut out.wake_log, &iv_wake),
-        (&mut out.jitter_log, &iv_jit),
-    ] {
-        if let Some(l) = log {
-            l.add(h, a, d).map_err(|e| LatencyError::Output {
-                path: "hdr log".into(),
-                reason: e.to_string(),
-            })?;
-        }
+    let t = now_ns().max(iv_start);
+    if let Some(l) = &logs {
+        // The last, partial interval: the run is over, a blocking hand-off
+        // costs nothing now.
+        let (at, len) = (
+            Duration::from_nanos(iv_start - start_ns),
+            Duration::from_nanos(t - iv_start),
+        );
+        let _ = l.full.send((at, len, iv));
     }
-    Ok(out)
+    out
 }
 
 /// Run the timer baseline on every configured core at once.
@@ -219,25 +238,64 @@ pub fn timer_baseline(
     // A common start a little ahead, so every thread is set up in time.
     let start_ns = now_ns() + 20_000_000;
     let start_wall = SystemTime::now() + Duration::from_millis(20);
+    let new_log = |core: usize, what: &str| {
+        let c = [format!(
+            "beliefbus jitter: timer {what}, core {core}, {} Hz, fifo {:?}",
+            cfg.rate_hz, cfg.fifo
+        )];
+        HdrLog::new(start_wall, &c).map_err(|e| LatencyError::Output {
+            path: "hdr log".into(),
+            reason: e.to_string(),
+        })
+    };
     std::thread::scope(|s| {
-        let handles: Vec<_> = cfg
-            .cores
-            .iter()
-            .map(|&core| {
-                std::thread::Builder::new()
-                    .name(format!("timer-{core}"))
-                    .spawn_scoped(s, move || {
-                        timer_thread(cfg, core, start_ns, start_wall, stop)
-                    })
-            })
-            .collect();
-        let mut out = Vec::with_capacity(handles.len());
-        for h in handles {
-            let h = h.map_err(|e| LatencyError::Spawn(e.to_string()))?;
-            out.push(
-                h.join()
-                    .map_err(|_| LatencyError::Protocol("a timer thread panicked".into()))??,
-            );
+        let mut jobs = Vec::with_capacity(cfg.cores.len());
+        for &core in &cfg.cores {
+            // The writer is spawned first, from this (unpinned, SCHED_OTHER)
+            // thread, so it does not inherit the timer's core or priority.
+            let (tx, writer) = if cfg.hdr_logs {
+                let logs = [
+                    new_log(core, "wake-up latency")?,
+                    new_log(core, "period jitter")?,
+                ];
+                let (full_tx, full_rx) = crossbeam::channel::bounded(POOL + 1);
+                let (empty_tx, empty_rx) = crossbeam::channel::bounded(POOL + 1);
+                for _ in 0..POOL {
+                    let _ = empty_tx.send([LatencyHist::new(), LatencyHist::new()]);
+                }
+                let w = std::thread::Builder::new()
+                    .name(format!("timer-log-{core}"))
+                    .spawn_scoped(s, move || log_writer(logs, full_rx, empty_tx))
+                    .map_err(|e| LatencyError::Spawn(e.to_string()))?;
+                (
+                    Some(IntervalTx {
+                        full: full_tx,
+                        empty: empty_rx,
+                    }),
+                    Some(w),
+                )
+            } else {
+                (None, None)
+            };
+            let t = std::thread::Builder::new()
+                .name(format!("timer-{core}"))
+                .spawn_scoped(s, move || timer_thread(cfg, core, start_ns, stop, tx))
+                .map_err(|e| LatencyError::Spawn(e.to_string()))?;
+            jobs.push((t, writer));
+        }
+        let mut out = Vec::with_capacity(jobs.len());
+        for (t, w) in jobs {
+            let mut c = t
+                .join()
+                .map_err(|_| LatencyError::Protocol("a timer thread panicked".into()))?;
+            if let Some(w) = w {
+                let [wake, jit] = w
+                    .join()
+                    .map_err(|_| LatencyError::Protocol("a log writer panicked".into()))??;
+                c.wake_log = Some(wake);
+                c.jitter_log = Some(jit);
+            }
+            out.push(c);
         }
         Ok(out)
     })
@@ -414,7 +472,7 @@ mod tests {
     fn the_timer_wakes_once_per_period_never_early() {
         let cfg = TimerConfig {
             rate_hz: 500.0,
-            duration: Duration::from_millis(400),
+            duration: Duration::from_millis(1300),
             cores: vec![0],
             fifo: None,
             hdr_logs: true,
@@ -424,11 +482,14 @@ mod tests {
         assert_eq!(r.len(), 1);
         let c = &r[0];
         // Every period either woke once or was counted as missed.
-        assert_eq!(c.wakeups + c.misses, 200, "{} + {}", c.wakeups, c.misses);
+        assert_eq!(c.wakeups + c.misses, 650, "{} + {}", c.wakeups, c.misses);
         assert_eq!(c.period_jitter.count() + 1, c.wakeups);
         // Never before the deadline (the histogram records ≥ 1 ns).
         assert!(c.wake.count() == c.wakeups);
-        assert!(c.wake_log.as_ref().unwrap().intervals() >= 1);
+        // One interval per second, written off the timer thread, plus the
+        // last partial one.
+        assert_eq!(c.wake_log.as_ref().unwrap().intervals(), 2);
+        assert_eq!(c.jitter_log.as_ref().unwrap().intervals(), 2);
         let (merged, per_core) = baseline_entries(&cfg, &r);
         assert_eq!(merged.latency.count, c.wakeups);
         assert_eq!(per_core[0].name, "timer-core0");

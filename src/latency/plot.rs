@@ -53,7 +53,9 @@ fn x_range(rows: &[Vec<(f64, u64)>]) -> Option<(f64, f64)> {
     if !(hi > 0.0) {
         return None;
     }
-    let lo = lo.max(1e-3);
+    // Four decades below the maximum are plenty; values under the floor
+    // (a jitter of a few ns) are drawn at it.
+    let lo = lo.max(hi * 1e-4).max(1e-2);
     Some((lo / 1.25, (hi * 1.25).max(lo * 2.0)))
 }
 
@@ -72,7 +74,8 @@ pub fn log_bins(pts: &[(f64, u64)], lo: f64, hi: f64) -> Vec<(f64, f64, u64)> {
         })
         .collect();
     for &(v, c) in pts {
-        let i = (((v / lo).log10() / step).floor().max(0.0) as usize).min(n - 1);
+        // Below `lo` counts into the first bin, above `hi` into the last.
+        let i = (((v.max(lo) / lo).log10() / step).floor().max(0.0) as usize).min(n - 1);
         bins[i].2 += c;
     }
     bins
@@ -197,7 +200,7 @@ pub fn write_svg(path: &Path, title: &str, rows: &[Row]) -> Result<(), LatencyEr
             line.push((lo, 0.0));
             for &(v, c) in p {
                 acc += c;
-                line.push((v, acc as f64 / total as f64));
+                line.push((v.max(lo), acc as f64 / total as f64));
             }
             let (p50, p99) = (quantile_of(p, total, 0.5), quantile_of(p, total, 0.99));
             chart
@@ -211,7 +214,7 @@ pub fn write_svg(path: &Path, title: &str, rows: &[Row]) -> Result<(), LatencyEr
                 .draw_series(
                     [(p50, 0.5), (p99, 0.99)]
                         .into_iter()
-                        .map(|(x, y)| Circle::new((x, y), 4, color.filled())),
+                        .map(|(x, y)| Circle::new((x.max(lo), y), 4, color.filled())),
                 )
                 .map_err(|e| draw_err(e, path))?;
         }

@@ -137,6 +137,14 @@ impl LatencyReport {
                 fmt_ratio(p.ratio_max)
             );
         }
+        let find = |n: &str| self.paths.iter().find(|p| p.name == n);
+        if let (Some(small), Some(big)) = (find("chain-64B"), find("chain-16MiB")) {
+            s += &format!(
+                "zero copy: chain-16MiB / chain-64B one-way p50, ours {}, bare {}\n",
+                fmt_ratio(super::stats::ratio(big.ours.p50_us, small.ours.p50_us)),
+                fmt_ratio(super::stats::ratio(big.bare.p50_us, small.bare.p50_us)),
+            );
+        }
         s += &self.run.load.line();
         s.push('\n');
         for w in &self.run.warnings {
