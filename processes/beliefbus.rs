@@ -18,6 +18,34 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the pipeline: spawn the stages, report latency and accuracy.
+    Run {
+        /// Pipeline config.
+        #[arg(default_value = beliefbus::pipeline::stage_main::DEFAULT_CONFIG)]
+        config: PathBuf,
+        /// Run length in seconds (default: run.duration_s; 0 = until Ctrl-C).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Write the report JSON here.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// Override one config key by dotted path (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
+        /// No status line every second.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Run one stage in this process (what the launcher falls back to when
+    /// the stage executables are missing or stale).
+    #[command(hide = true)]
+    Stage {
+        /// ingest | filter | control | refine | plant
+        name: String,
+        /// The stage's own arguments.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
     /// Reproduce a table of the reference papers (`--list` shows them).
     Experiment {
         /// Experiment name.
@@ -50,7 +78,44 @@ enum Command {
 }
 
 fn main() {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) if e.use_stderr() => {
+            // One line naming the problem (clap's first line), exit 2.
+            let msg = e.to_string();
+            eprintln!("{}", msg.lines().next().unwrap_or("bad arguments"));
+            std::process::exit(2);
+        }
+        Err(e) => {
+            let _ = e.print();
+            std::process::exit(0);
+        }
+    };
+    if let Command::Run {
+        config,
+        duration,
+        report,
+        sets,
+        quiet,
+    } = &cli.command
+    {
+        let opts = beliefbus::pipeline::launcher::RunOptions {
+            config: config.clone(),
+            duration_s: *duration,
+            report: report.clone(),
+            sets: sets.clone(),
+            quiet: *quiet,
+        };
+        std::process::exit(beliefbus::pipeline::launcher::main(&opts));
+    }
+    if let Command::Stage { name, args } = &cli.command {
+        let Some(kind) = beliefbus::ipc::StageKind::from_name(name) else {
+            eprintln!("unknown stage '{name}'");
+            std::process::exit(2);
+        };
+        let argv = std::iter::once(format!("beliefbus-{name}")).chain(args.iter().cloned());
+        std::process::exit(beliefbus::pipeline::stage_main::main_with(kind, argv));
+    }
     let code = match run(cli) {
         Ok(()) => 0,
         Err(e) => {
@@ -63,6 +128,7 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Command::Run { .. } | Command::Stage { .. } => unreachable!("handled in main"),
         Command::Latency(a) => beliefbus::latency::cli::latency(a),
         Command::Jitter(a) => beliefbus::latency::cli::jitter(a),
         Command::LatencyPong(a) => beliefbus::latency::cli::pong(a),

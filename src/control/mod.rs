@@ -4,6 +4,7 @@
 //! path-integral control (paper 003).
 
 pub mod cost;
+pub mod mppi;
 pub mod waypoints;
 
 use crate::belief::Gaussian;
@@ -44,6 +45,10 @@ pub trait Controller: Send {
     fn set_goal(&mut self, goal: &[f64]);
     /// Forget the warm start (e.g. after a goal switch or a restart).
     fn reset(&mut self);
+    /// Off-critical-path work for the next call (e.g. drawing the next
+    /// rollouts' noise). A stage calls it right after publishing a control;
+    /// `compute` stays correct when it was not called.
+    fn prepare(&mut self) {}
     /// Compute the control to apply at time `t` given the belief, into `u`.
     fn compute(
         &mut self,

@@ -16,6 +16,7 @@ pub mod gauss;
 pub mod kalman;
 pub mod pf;
 pub mod resample;
+pub mod ukf;
 
 use crate::belief::Gaussian;
 use crate::model::{Dims, Measurement};

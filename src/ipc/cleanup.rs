@@ -58,6 +58,7 @@ pub struct CleanupReport {
 }
 
 fn iox_config(prefix: &str) -> Result<Config, IpcError> {
+    super::init_logging();
     super::validate_prefix(prefix)?;
     let mut c = Config::global_config().clone();
     c.global.prefix = FileName::new(prefix.as_bytes()).map_err(|e| IpcError::InvalidName {
@@ -116,6 +117,7 @@ pub fn resources(prefix: &str) -> Vec<PathBuf> {
         return out;
     }
     collect(Path::new(SHM_DIR), prefix, 0, &mut out);
+    super::init_logging();
     let root = Config::global_config()
         .global
         .root_path()

@@ -77,19 +77,16 @@ pub enum Hop {
     SensorToBelief = 4,
     /// Sample publish → control published.
     SensorToControl = 5,
-    /// Control published → plant applies it (closed loop only).
-    ControlToPlant = 6,
 }
 
 impl Hop {
     /// Every hop, in report order.
-    pub const ALL: [Hop; 6] = [
+    pub const ALL: [Hop; 5] = [
         Hop::SensorToIngest,
         Hop::IngestToFilter,
         Hop::FilterToControl,
         Hop::SensorToBelief,
         Hop::SensorToControl,
-        Hop::ControlToPlant,
     ];
 
     /// The report key (`"sensor->control"`, ...).
@@ -100,7 +97,6 @@ impl Hop {
             Hop::FilterToControl => "filter->control",
             Hop::SensorToBelief => "sensor->belief",
             Hop::SensorToControl => "sensor->control",
-            Hop::ControlToPlant => "control->plant",
         }
     }
 
@@ -116,9 +112,7 @@ fn span(a: u64, b: u64) -> Option<u64> {
 }
 
 impl Trace {
-    /// Duration of `hop` in ns, if both of its stamps are present
-    /// ([`Hop::ControlToPlant`] needs the plant's receive time: use
-    /// [`Trace::control_to`]).
+    /// Duration of `hop` in ns, if both of its stamps are present.
     pub fn hop_ns(&self, hop: Hop) -> Option<u64> {
         match hop {
             Hop::SensorToIngest => span(self.t_sensor_pub_ns, self.t_ingest_in_ns),
@@ -126,13 +120,7 @@ impl Trace {
             Hop::FilterToControl => span(self.t_filter_out_ns, self.t_control_in_ns),
             Hop::SensorToBelief => span(self.t_sensor_pub_ns, self.t_filter_out_ns),
             Hop::SensorToControl => span(self.t_sensor_pub_ns, self.t_control_out_ns),
-            Hop::ControlToPlant => None,
         }
-    }
-
-    /// Time from control publish to `t_ns`.
-    pub fn control_to(&self, t_ns: u64) -> Option<u64> {
-        span(self.t_control_out_ns, t_ns)
     }
 }
 

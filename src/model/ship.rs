@@ -93,10 +93,16 @@ impl Ship {
     }
 
     /// The wall force (f1, f2) at x.
+    ///
+    /// Compares ρ² against R² and takes the square root only beyond the wall:
+    /// `hypot` costs as much as a whole MPPI rollout step, and the drift is
+    /// the innermost loop of every sampler.
+    #[inline]
     pub fn wall_force(&self, x: &[f64]) -> (f64, f64) {
-        let rho = x[0].hypot(x[1]);
-        if rho >= self.params.radius && x[0] * x[2] + x[1] * x[3] >= 0.0 {
-            let k = -self.params.wall_gain / rho;
+        let r = self.params.radius;
+        let rho2 = x[0] * x[0] + x[1] * x[1];
+        if rho2 >= r * r && x[0] * x[2] + x[1] * x[3] >= 0.0 {
+            let k = -self.params.wall_gain / rho2.sqrt();
             (k * x[0], k * x[1])
         } else {
             (0.0, 0.0)
@@ -125,6 +131,7 @@ impl SdeModel for Ship {
             control: 2,
         }
     }
+    #[inline]
     fn drift(&self, x: &[f64], u: &[f64], f: &mut [f64]) {
         let (f1, f2) = self.wall_force(x);
         let (u1, u2) = if u.len() >= 2 {
@@ -143,8 +150,10 @@ impl SdeModel for Ship {
             big_f[i + 4 * i] = self.params.e;
         }
     }
+    #[inline]
     fn obs_mean(&self, x: &[f64], g: &mut [f64]) {
-        g[0] = x[0].hypot(x[1]);
+        // Positions are bounded by the disc, so the plain root cannot overflow.
+        g[0] = (x[0] * x[0] + x[1] * x[1]).sqrt();
         g[1] = x[1].atan2(x[0]);
     }
     fn obs_std(&self, std: &mut [f64]) {

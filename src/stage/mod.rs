@@ -1,1 +1,318 @@
-//! (filled in by its issue)
+//! The loop of each stage as a library function
+//! `run(ports, cfg, clock, stop) -> final stats`, testable in one process
+//! (tests open the ports on a private prefix and drive them from other
+//! threads); `processes/` only parses arguments, applies the rt settings,
+//! opens the ports and calls it.
+//!
+//! Common to every stage ([`Metrics`], [`StatsPort`]): counters of processed,
+//! dropped and rejected inputs (by reason), the compute time of every
+//! processed message against the stage's budget, the latency hops that end
+//! at the stage (computed from the trace the message carries), and a
+//! [`StageStats`] report published at start (so the launcher knows the stage
+//! is up), every `run.stats_period_s`, and once more on the way out.
+
+pub mod control;
+pub mod filter;
+pub mod ingest;
+pub mod plant;
+pub mod refine;
+
+use crate::ipc::BusConfig;
+use crate::ipc::{
+    stats_flags, Bus, Hop, HopStats, IpcError, Publisher, StageKind, StageStats, Trace, STATS_HOPS,
+    STATS_REASONS,
+};
+use crate::pipeline::{ConfigError, PipelineConfig};
+use crate::rt::{Budget, Clock, LatencyHist, RtApplied};
+use std::sync::atomic::AtomicBool;
+
+/// Why a stage stopped abnormally.
+#[derive(Debug, thiserror::Error)]
+pub enum StageError {
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The backend could not be built from the config.
+    #[error("cannot build {what}: {reason}")]
+    Build { what: &'static str, reason: String },
+}
+
+/// Who a stage process is, for its reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StageIdentity {
+    pub kind: StageKind,
+    pub pid: u32,
+    pub core: Option<usize>,
+    /// [`stats_flags`] bits (FIFO, MLOCKED).
+    pub flags: u32,
+}
+
+impl StageIdentity {
+    /// This process, with what its rt settings achieved.
+    pub fn this_process(kind: StageKind, rt: &RtApplied) -> Self {
+        let mut flags = 0;
+        if rt.fifo {
+            flags |= stats_flags::FIFO;
+        }
+        if rt.mlocked {
+            flags |= stats_flags::MLOCKED;
+        }
+        Self {
+            kind,
+            pid: std::process::id(),
+            core: rt.core,
+            flags,
+        }
+    }
+
+    /// This process, with no rt settings applied (tests).
+    pub fn plain(kind: StageKind) -> Self {
+        Self::this_process(kind, &RtApplied::default())
+    }
+}
+
+/// Tracks a per-publisher sequence number and counts the gaps (samples lost
+/// or superseded before this reader saw them).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SeqTracker {
+    last: Option<u64>,
+}
+
+impl SeqTracker {
+    /// Observe `seq`; returns how many sequence numbers were skipped. A
+    /// sequence number at or below the last one (a restarted publisher)
+    /// restarts the tracking without counting a gap.
+    pub fn observe(&mut self, seq: u64) -> u64 {
+        let gap = match self.last {
+            Some(l) if seq > l => seq - l - 1,
+            _ => 0,
+        };
+        self.last = Some(seq);
+        gap
+    }
+}
+
+/// Counters and histograms of one stage.
+#[derive(Debug)]
+pub struct Metrics {
+    pub processed: u64,
+    pub dropped: u64,
+    pub rejected_by_reason: [u64; STATS_REASONS],
+    pub budget: Budget,
+    hops: Vec<(Hop, LatencyHist)>,
+    warmup_ns: u64,
+    first_meas_ns: Option<u64>,
+    /// Plant only (see [`StageStats`]).
+    pub controls_received: u64,
+    pub processed_after_warmup: u64,
+    pub goal_distance_sum: f64,
+    pub goal_distance_count: u64,
+    pub waypoints_reached: u64,
+}
+
+impl Metrics {
+    /// Metrics with a budget, the hops this stage measures (at most
+    /// [`STATS_HOPS`]) and the warm-up excluded from them.
+    pub fn new(budget_ns: u64, hops: &[Hop], warmup_ns: u64) -> Self {
+        assert!(hops.len() <= STATS_HOPS);
+        Self {
+            processed: 0,
+            dropped: 0,
+            rejected_by_reason: [0; STATS_REASONS],
+            budget: Budget::new(budget_ns),
+            hops: hops.iter().map(|&h| (h, LatencyHist::new())).collect(),
+            warmup_ns,
+            first_meas_ns: None,
+            controls_received: 0,
+            processed_after_warmup: 0,
+            goal_distance_sum: 0.0,
+            goal_distance_count: 0,
+            waypoints_reached: 0,
+        }
+    }
+
+    /// Count a rejection.
+    pub fn reject(&mut self, reason: usize) {
+        self.rejected_by_reason[reason.min(STATS_REASONS - 1)] += 1;
+    }
+
+    /// Total rejections.
+    pub fn rejected(&self) -> u64 {
+        self.rejected_by_reason.iter().sum()
+    }
+
+    /// Whether a sample measured at `t_meas_ns` is past the warm-up (the
+    /// warm-up starts at the first measurement this stage sees).
+    pub fn past_warmup(&mut self, t_meas_ns: u64) -> bool {
+        let first = *self.first_meas_ns.get_or_insert(t_meas_ns);
+        t_meas_ns >= first.saturating_add(self.warmup_ns)
+    }
+
+    /// Record every hop of this stage that `trace` completes (after the
+    /// warm-up).
+    pub fn record_hops(&mut self, trace: &Trace) {
+        if !self.past_warmup(trace.t_meas_ns) {
+            return;
+        }
+        for (hop, h) in self.hops.iter_mut() {
+            if let Some(ns) = trace.hop_ns(*hop) {
+                h.record(ns);
+            }
+        }
+    }
+
+    /// The histogram of `hop`, if this stage measures it.
+    pub fn hop(&self, hop: Hop) -> Option<&LatencyHist> {
+        self.hops.iter().find(|(h, _)| *h == hop).map(|(_, h)| h)
+    }
+
+    /// The stats message (header left for the publisher).
+    pub fn to_stats(&self, id: &StageIdentity) -> StageStats {
+        let mut s = StageStats {
+            stage: id.kind as u32,
+            pid: id.pid,
+            core: id.core.map(|c| c as i32).unwrap_or(-1),
+            flags: id.flags,
+            processed: self.processed,
+            dropped: self.dropped,
+            rejected: self.rejected(),
+            rejected_by_reason: self.rejected_by_reason,
+            deadline_misses: self.budget.misses(),
+            budget_ns: self.budget.budget_ns(),
+            compute: self.budget.compute().percentiles(),
+            controls_received: self.controls_received,
+            processed_after_warmup: self.processed_after_warmup,
+            mean_goal_distance: if self.goal_distance_count > 0 {
+                self.goal_distance_sum / self.goal_distance_count as f64
+            } else {
+                0.0
+            },
+            waypoints_reached: self.waypoints_reached,
+            ..StageStats::default()
+        };
+        for (slot, (hop, h)) in s.hops.iter_mut().zip(&self.hops) {
+            *slot = HopStats {
+                hop: *hop as u32,
+                reserved: 0,
+                pct: h.percentiles(),
+            };
+        }
+        s
+    }
+}
+
+/// Publishes a stage's [`StageStats`] periodically.
+pub struct StatsPort {
+    publisher: Publisher<StageStats>,
+    id: StageIdentity,
+    seq: u64,
+    period_ns: u64,
+    next_ns: u64,
+}
+
+impl std::fmt::Debug for StatsPort {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StatsPort")
+            .field("id", &self.id)
+            .field("seq", &self.seq)
+            .finish()
+    }
+}
+
+impl StatsPort {
+    /// A stats publisher for `id`, reporting every `period_s`.
+    pub fn open(bus: &Bus, id: StageIdentity, period_s: f64) -> Result<Self, IpcError> {
+        Ok(Self {
+            publisher: bus.publisher()?,
+            id,
+            seq: 0,
+            period_ns: (period_s * 1e9).max(1e6) as u64,
+            next_ns: 0,
+        })
+    }
+
+    /// The stage's identity.
+    pub fn id(&self) -> &StageIdentity {
+        &self.id
+    }
+
+    /// Publish now; `last` marks the final report.
+    pub fn publish(
+        &mut self,
+        m: &Metrics,
+        now_ns: u64,
+        last: bool,
+    ) -> Result<StageStats, IpcError> {
+        let mut s = m.to_stats(&self.id);
+        s.header.seq = self.seq;
+        s.header.t_valid_ns = now_ns;
+        s.header.t_pub_ns = now_ns;
+        if last {
+            s.flags |= stats_flags::FINAL;
+        }
+        self.seq += 1;
+        self.next_ns = now_ns + self.period_ns;
+        self.publisher.publish(&s)?;
+        Ok(s)
+    }
+
+    /// Publish if a period has passed since the last report.
+    pub fn tick(&mut self, m: &Metrics, now_ns: u64) -> Result<(), IpcError> {
+        if now_ns >= self.next_ns {
+            self.publish(m, now_ns, false)?;
+        }
+        Ok(())
+    }
+}
+
+/// Seconds since `epoch_ns` (algorithms run on f64 seconds; keeping the
+/// epoch near the run start keeps the resolution at nanoseconds).
+pub fn secs_since(epoch_ns: u64, t_ns: u64) -> f64 {
+    (t_ns as i128 - epoch_ns as i128) as f64 * 1e-9
+}
+
+/// Join the pipeline on `bus` as `id.kind`, open that stage's ports and run
+/// its loop until `stop` (what a stage executable does after applying its
+/// rt settings; tests call it on threads).
+pub fn run_stage(
+    bus: &BusConfig,
+    cfg: &PipelineConfig,
+    id: StageIdentity,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+) -> Result<StageStats, StageError> {
+    let b = Bus::open(bus, id.kind.name())?;
+    match id.kind {
+        StageKind::Ingest => ingest::run(ingest::IngestPorts::open(&b, id, cfg)?, cfg, clock, stop),
+        StageKind::Filter => filter::run(filter::FilterPorts::open(&b, id, cfg)?, cfg, clock, stop),
+        StageKind::Control => {
+            control::run(control::ControlPorts::open(&b, id, cfg)?, cfg, clock, stop)
+        }
+        StageKind::Refine => refine::run(refine::RefinePorts::open(&b, id, cfg)?, cfg, clock, stop),
+        StageKind::Plant => plant::run(plant::PlantPorts::open(&b, id, cfg)?, cfg, clock, stop),
+    }
+}
+
+/// Run one step of a loop body; an error is stored in `err` and ends the
+/// loop.
+pub fn guarded(
+    err: &mut Option<StageError>,
+    step: impl FnOnce() -> Result<(), StageError>,
+) -> std::ops::ControlFlow<()> {
+    match step() {
+        Ok(()) => std::ops::ControlFlow::Continue(()),
+        Err(e) => {
+            *err = Some(e);
+            std::ops::ControlFlow::Break(())
+        }
+    }
+}
+
+/// Read the stop flag.
+pub fn stopped(stop: &AtomicBool) -> bool {
+    stop.load(std::sync::atomic::Ordering::Relaxed)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,114 @@
+use super::*;
+
+const BASE: &str = r#"
+[run]
+scenario = "ship"
+instance = "t"
+
+[plant]
+sensor_rate_hz = 100.0
+integration_dt = 1e-4
+initial_state = [3.0, 0.0, 0.0, 0.0]
+
+[filter]
+backend = "pf"
+prior_mean = [3.0, 0.0, 0.0, 0.0]
+prior_std = [0.5, 0.5, 0.3, 0.3]
+
+[filter.pf]
+particles = 200
+
+[control]
+backend = "none"
+
+[stages.filter]
+budget_us = 2000
+"#;
+
+fn err(text: &str, sets: &[&str]) -> ConfigError {
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    load_str(text, &sets).unwrap_err()
+}
+
+#[test]
+fn a_valid_config_loads_with_defaults_filled_in() {
+    let c = load_str(BASE, &[]).unwrap();
+    assert_eq!(c.run.scenario, Scenario::Ship);
+    assert_eq!(c.filter.pf.particles, 200);
+    assert_eq!(c.stages.filter.budget_ns(), 2_000_000);
+    assert_eq!(c.run.seed, 1);
+    assert_eq!(c.ship_params(), ShipParams::paper(0.01));
+    assert_eq!(c.channels(2)[0].components, vec![0, 1]);
+}
+
+#[test]
+fn unknown_keys_are_named_with_their_path() {
+    let e = err(
+        &format!("{BASE}\n[refine]\nperiod_ms = 5\nbogus = 1\n"),
+        &[],
+    );
+    assert_eq!(e.key, "refine.bogus", "{e}");
+    assert!(e.problem.contains("unknown field"), "{e}");
+    let e = err(BASE, &["filter.pf.particlez=3"]);
+    assert_eq!(e.key, "filter.pf.particlez", "{e}");
+}
+
+#[test]
+fn wrong_types_are_named_with_their_path() {
+    let e = err(BASE, &["filter.pf.particles=\"many\""]);
+    assert_eq!(e.key, "filter.pf.particles", "{e}");
+    assert!(e.problem.contains("invalid type"), "{e}");
+    let e = err(BASE, &["plant.sensor_rate_hz=fast"]);
+    assert_eq!(e.key, "plant.sensor_rate_hz", "{e}");
+}
+
+#[test]
+fn every_error_is_one_line() {
+    for e in [
+        err(BASE, &["filter.pf.particles=\"many\""]),
+        err("[run\nx=1", &[]),
+        err(BASE, &["stages.filter.core=99"]),
+        err(BASE, &["filter.backend=kalmanx"]),
+    ] {
+        let s = e.to_string();
+        assert!(!s.contains('\n'), "multi-line: {s}");
+        assert!(s.starts_with("config: "), "{s}");
+    }
+}
+
+#[test]
+fn overrides_are_validated_like_the_file() {
+    let c = load_str(BASE, &["filter.backend=ekf".into(), "run.seed=9".into()]).unwrap();
+    assert_eq!(c.filter.backend, FilterBackend::Ekf);
+    assert_eq!(c.run.seed, 9);
+    let e = err(BASE, &["plant.initial_state=[1.0, 2.0]"]);
+    assert_eq!(e.key, "plant.initial_state");
+    assert!(e.problem.contains("needs 4 entries"), "{e}");
+    let e = err(BASE, &["filter.pf.particles=0"]);
+    assert_eq!(e.key, "filter.pf.particles");
+    let e = err(BASE, &["run.scenario.x=1"]);
+    assert_eq!(e.key, "run.scenario");
+    let e = err(BASE, &["novalue"]);
+    assert!(e.problem.contains("KEY=VALUE"));
+}
+
+#[test]
+fn semantic_checks_name_the_key() {
+    let e = err(BASE, &["stages.control.core=64"]);
+    assert_eq!(e.key, "stages.control.core");
+    let e = err(BASE, &["plant.integration_dt=0.5"]);
+    assert_eq!(e.key, "plant.integration_dt");
+    let e = err(BASE, &["run.instance=\"a/b\""]);
+    assert_eq!(e.key, "run.instance");
+    let e = err(BASE, &["filter.prior_std=[1.0, 0.0, 1.0, 1.0]"]);
+    assert_eq!(e.key, "filter.prior_std");
+    let e = err(BASE, &["run.scenario=vanderpol"]);
+    assert_eq!(e.key, "plant.initial_state", "{e}");
+}
+
+#[test]
+fn syntax_errors_name_the_line() {
+    let e = err("[run]\nscenario = \"ship\"\ninstance = \n", &[]);
+    assert_eq!(e.key, "");
+    assert!(e.problem.starts_with("line 3"), "{e}");
+}

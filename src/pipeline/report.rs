@@ -1,0 +1,375 @@
+//! The run report (issue 2 item 8): JSON written by `beliefbus run --report`
+//! and the tables printed at the end of a run.
+//!
+//! ```text
+//! { scenario, duration_s, sensor_rate_hz, filter_backend, controller,
+//!   prefix, sensor_samples, sensor_samples_after_warmup,
+//!   hops:   { "sensor->ingest" | "ingest->filter" | "filter->control" |
+//!             "sensor->belief" | "sensor->control":
+//!             {count, p50_us, p90_us, p99_us, p999_us, max_us} },
+//!   stages: { ingest | filter | control | refine | plant:
+//!             {pid, core, processed, dropped, rejected, rejected_by_reason,
+//!              deadline_misses, compute_p50_us, compute_p99_us, budget_us,
+//!              fifo, mlocked, exit_status} },
+//!   accuracy: {rmse_position, rmse_state, rmse_position_raw, beliefs, samples},
+//!   control:  {waypoints_reached, mean_distance_to_waypoint, controls_received},
+//!   shared_memory: {files_removed, files_left} }
+//! ```
+//! Hops count only samples measured after `run.warmup_s`; a figure with no
+//! data is `null` (e.g. control hops of an estimation-only run).
+
+use super::monitor::Accuracy;
+use crate::ipc::{stats_flags, Hop, Percentiles, StageKind, StageStats};
+use crate::stage::{control, filter, ingest};
+use serde::Serialize;
+use serde_json::{json, Map, Value};
+
+/// Percentiles in µs.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct HopReport {
+    pub count: u64,
+    pub p50_us: f64,
+    pub p90_us: f64,
+    pub p99_us: f64,
+    pub p999_us: f64,
+    pub max_us: f64,
+}
+
+fn us(ns: u64) -> f64 {
+    ns as f64 / 1e3
+}
+
+impl From<&Percentiles> for HopReport {
+    fn from(p: &Percentiles) -> Self {
+        Self {
+            count: p.count,
+            p50_us: us(p.p50_ns),
+            p90_us: us(p.p90_ns),
+            p99_us: us(p.p99_ns),
+            p999_us: us(p.p999_ns),
+            max_us: us(p.max_ns),
+        }
+    }
+}
+
+/// What the launcher knows about one stage at the end.
+#[derive(Clone, Debug, Default)]
+pub struct StageEnd {
+    pub pid: Option<u32>,
+    /// The last report (the final one if the stage stopped cleanly).
+    pub stats: Option<StageStats>,
+    /// How the process ended (`exit 0`, `signal 9`, ...).
+    pub exit: Option<String>,
+}
+
+/// Everything the report is made of.
+#[derive(Clone, Debug)]
+pub struct ReportInput {
+    pub scenario: String,
+    pub duration_s: f64,
+    pub sensor_rate_hz: f64,
+    pub filter_backend: String,
+    pub controller: String,
+    pub prefix: String,
+    pub stages: Vec<(StageKind, StageEnd)>,
+    pub accuracy: Accuracy,
+    pub files_removed: usize,
+    pub files_left: usize,
+}
+
+fn reasons(kind: StageKind, r: &[u64]) -> Value {
+    let names: Vec<&str> = match kind {
+        StageKind::Ingest => ingest::Reason::ALL.iter().map(|r| r.name()).collect(),
+        StageKind::Filter => filter::Reason::ALL.iter().map(|r| r.name()).collect(),
+        StageKind::Control => control::Reason::ALL.iter().map(|r| r.name()).collect(),
+        _ => Vec::new(),
+    };
+    let mut m = Map::new();
+    for (i, n) in names.iter().enumerate() {
+        m.insert(n.to_string(), json!(r[i]));
+    }
+    Value::Object(m)
+}
+
+fn opt(v: Option<f64>) -> Value {
+    v.filter(|x| x.is_finite())
+        .map(Value::from)
+        .unwrap_or(Value::Null)
+}
+
+impl ReportInput {
+    fn stats(&self, kind: StageKind) -> Option<&StageStats> {
+        self.stages
+            .iter()
+            .find(|(k, _)| *k == kind)
+            .and_then(|(_, e)| e.stats.as_ref())
+    }
+
+    /// The percentiles of `hop` from whichever stage measured it.
+    pub fn hop(&self, hop: Hop) -> Option<HopReport> {
+        self.stages
+            .iter()
+            .filter_map(|(_, e)| e.stats.as_ref())
+            .find_map(|s| s.hop(hop))
+            .map(HopReport::from)
+    }
+
+    /// The report JSON.
+    pub fn to_json(&self) -> Value {
+        let mut hops = Map::new();
+        for h in Hop::ALL {
+            let v = self
+                .hop(h)
+                .map(|r| serde_json::to_value(r).unwrap_or(Value::Null))
+                .unwrap_or_else(|| {
+                    json!({"count": 0, "p50_us": null, "p90_us": null, "p99_us": null,
+                           "p999_us": null, "max_us": null})
+                });
+            hops.insert(h.key().to_string(), v);
+        }
+        let mut stages = Map::new();
+        for (kind, end) in &self.stages {
+            let s = end.stats.unwrap_or_default();
+            let has = end.stats.is_some();
+            let c = &s.compute;
+            stages.insert(
+                kind.name().to_string(),
+                json!({
+                    "pid": end.pid,
+                    "core": if s.core >= 0 { json!(s.core) } else { Value::Null },
+                    "processed": s.processed,
+                    "dropped": s.dropped,
+                    "rejected": s.rejected,
+                    "rejected_by_reason": reasons(*kind, &s.rejected_by_reason),
+                    "deadline_misses": s.deadline_misses,
+                    "compute_p50_us": if c.count > 0 { json!(us(c.p50_ns)) } else { Value::Null },
+                    "compute_p99_us": if c.count > 0 { json!(us(c.p99_ns)) } else { Value::Null },
+                    "budget_us": us(s.budget_ns),
+                    "fifo": has && s.flags & stats_flags::FIFO != 0,
+                    "mlocked": has && s.flags & stats_flags::MLOCKED != 0,
+                    "final_report": has && s.flags & stats_flags::FINAL != 0,
+                    "exit_status": end.exit,
+                }),
+            );
+        }
+        let plant = self.stats(StageKind::Plant);
+        let a = &self.accuracy;
+        json!({
+            "scenario": self.scenario,
+            "duration_s": self.duration_s,
+            "sensor_rate_hz": self.sensor_rate_hz,
+            "filter_backend": self.filter_backend,
+            "controller": self.controller,
+            "prefix": self.prefix,
+            "sensor_samples": plant.map(|p| p.processed).unwrap_or(0),
+            "sensor_samples_after_warmup": plant.map(|p| p.processed_after_warmup).unwrap_or(0),
+            "hops": hops,
+            "stages": stages,
+            "accuracy": {
+                "rmse_position": opt(a.rmse_position),
+                "rmse_state": opt(a.rmse_state),
+                "rmse_position_raw": opt(a.rmse_position_raw),
+                "beliefs": a.beliefs,
+                "samples": a.samples,
+            },
+            "control": {
+                "waypoints_reached": plant.map(|p| p.waypoints_reached).unwrap_or(0),
+                "mean_distance_to_waypoint":
+                    opt(plant.filter(|p| p.controls_received > 0).map(|p| p.mean_goal_distance)),
+                "controls_received": plant.map(|p| p.controls_received).unwrap_or(0),
+            },
+            "shared_memory": {
+                "files_removed": self.files_removed,
+                "files_left": self.files_left,
+            },
+        })
+    }
+
+    /// The latency and stage tables printed at the end of a run.
+    pub fn render(&self) -> String {
+        let mut out = String::new();
+        out.push_str(&format!(
+            "{:<17} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9}\n",
+            "hop (µs)", "count", "p50", "p90", "p99", "p99.9", "max"
+        ));
+        for h in Hop::ALL {
+            match self.hop(h) {
+                Some(r) if r.count > 0 => out.push_str(&format!(
+                    "{:<17} {:>8} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1}\n",
+                    h.key(),
+                    r.count,
+                    r.p50_us,
+                    r.p90_us,
+                    r.p99_us,
+                    r.p999_us,
+                    r.max_us
+                )),
+                _ => out.push_str(&format!("{:<17} {:>8}\n", h.key(), 0)),
+            }
+        }
+        out.push('\n');
+        out.push_str(&format!(
+            "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>10} {:>10} {:>9}\n",
+            "stage",
+            "pid",
+            "core",
+            "processed",
+            "dropped",
+            "rejected",
+            "misses",
+            "cpu p50µs",
+            "cpu p99µs",
+            "budgetµs"
+        ));
+        for (kind, end) in &self.stages {
+            let s = end.stats.unwrap_or_default();
+            out.push_str(&format!(
+                "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>10.1} {:>10.1} {:>9.0}\n",
+                kind.name(),
+                end.pid.map(|p| p.to_string()).unwrap_or("-".into()),
+                if s.core >= 0 {
+                    s.core.to_string()
+                } else {
+                    "-".into()
+                },
+                s.processed,
+                s.dropped,
+                s.rejected,
+                s.deadline_misses,
+                us(s.compute.p50_ns),
+                us(s.compute.p99_ns),
+                us(s.budget_ns),
+            ));
+        }
+        let a = &self.accuracy;
+        let f = |v: Option<f64>| v.map(|x| format!("{x:.3}")).unwrap_or("-".into());
+        out.push_str(&format!(
+            "\naccuracy: rmse_position {} (raw measurement {}), rmse_state {}, {} beliefs scored\n",
+            f(a.rmse_position),
+            f(a.rmse_position_raw),
+            f(a.rmse_state),
+            a.beliefs
+        ));
+        if let Some(p) = self.stats(StageKind::Plant) {
+            if p.controls_received > 0 {
+                out.push_str(&format!(
+                    "control: {} controls applied, {} waypoints reached, mean distance to waypoint {:.2}\n",
+                    p.controls_received, p.waypoints_reached, p.mean_goal_distance
+                ));
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ipc::HopStats;
+
+    fn input() -> ReportInput {
+        let mut ctl = StageStats {
+            stage: StageKind::Control as u32,
+            processed: 10,
+            ..StageStats::default()
+        };
+        ctl.hops[0] = HopStats {
+            hop: Hop::SensorToControl as u32,
+            reserved: 0,
+            pct: Percentiles {
+                count: 9,
+                p50_ns: 1_500,
+                p90_ns: 2_000,
+                p99_ns: 3_000,
+                p999_ns: 4_000,
+                max_ns: 5_000,
+            },
+        };
+        ReportInput {
+            scenario: "ship".into(),
+            duration_s: 1.0,
+            sensor_rate_hz: 100.0,
+            filter_backend: "pf".into(),
+            controller: "mppi".into(),
+            prefix: "p".into(),
+            stages: StageKind::ALL
+                .iter()
+                .map(|&k| {
+                    (
+                        k,
+                        StageEnd {
+                            pid: Some(k as u32),
+                            stats: (k == StageKind::Control).then_some(ctl),
+                            exit: Some("exit 0".into()),
+                        },
+                    )
+                })
+                .collect(),
+            accuracy: Accuracy::default(),
+            files_removed: 3,
+            files_left: 0,
+        }
+    }
+
+    #[test]
+    fn json_has_every_key_of_issue_2() {
+        let v = input().to_json();
+        for k in [
+            "scenario",
+            "duration_s",
+            "sensor_rate_hz",
+            "filter_backend",
+            "controller",
+            "hops",
+            "stages",
+            "accuracy",
+            "control",
+        ] {
+            assert!(v.get(k).is_some(), "missing {k}");
+        }
+        for h in Hop::ALL {
+            let hop = &v["hops"][h.key()];
+            for k in ["count", "p50_us", "p90_us", "p99_us", "p999_us", "max_us"] {
+                assert!(hop.get(k).is_some(), "hops.{}.{k}", h.key());
+            }
+        }
+        assert_eq!(v["hops"]["sensor->control"]["p50_us"], json!(1.5));
+        assert_eq!(v["hops"]["sensor->control"]["count"], json!(9));
+        for s in StageKind::ALL {
+            let st = &v["stages"][s.name()];
+            for k in [
+                "pid",
+                "core",
+                "processed",
+                "dropped",
+                "rejected",
+                "deadline_misses",
+                "compute_p50_us",
+                "compute_p99_us",
+                "budget_us",
+            ] {
+                assert!(st.get(k).is_some(), "stages.{}.{k}", s.name());
+            }
+        }
+        for k in ["rmse_position", "rmse_state", "rmse_position_raw"] {
+            assert!(v["accuracy"].get(k).is_some());
+        }
+        for k in ["waypoints_reached", "mean_distance_to_waypoint"] {
+            assert!(v["control"].get(k).is_some());
+        }
+        assert!(v["stages"]["ingest"]["rejected_by_reason"]
+            .get("non_finite")
+            .is_some());
+    }
+
+    #[test]
+    fn render_lists_every_hop_and_stage() {
+        let t = input().render();
+        for h in Hop::ALL {
+            assert!(t.contains(h.key()));
+        }
+        for s in StageKind::ALL {
+            assert!(t.contains(s.name()));
+        }
+    }
+}

@@ -1,0 +1,96 @@
+//! What every stage executable does (`processes/beliefbus-<stage>.rs` is a
+//! one-line call of [`main`]): parse the arguments, load the same config as
+//! the launcher, install the stop handler, apply the stage's rt settings,
+//! join the pipeline and run the stage loop.
+//!
+//! ```text
+//! beliefbus-<stage> [CONFIG] [--set KEY=VALUE ...] [--prefix PREFIX]
+//! ```
+//! Exit status: 0 after a clean stop (SIGINT/SIGTERM), 2 for a bad config or
+//! bad arguments (one line on stderr), 1 for a runtime failure.
+
+use crate::ipc::{self, StageKind};
+use crate::pipeline::config;
+use crate::rt::MonotonicClock;
+use crate::stage::{run_stage, StageIdentity};
+use clap::Parser;
+use std::path::PathBuf;
+
+/// Fingerprint of the sources this binary was built from (see `build.rs`).
+pub const BUILD_ID: &str = env!("BELIEFBUS_BUILD_ID");
+
+/// Default config, relative to the working directory.
+pub const DEFAULT_CONFIG: &str = "configs/default.toml";
+
+#[derive(Parser, Debug)]
+struct Args {
+    /// Pipeline config (TOML).
+    #[arg(default_value = DEFAULT_CONFIG)]
+    config: PathBuf,
+    /// Override one config key by dotted path (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    sets: Vec<String>,
+    /// Shared-memory prefix (overrides `run.prefix`; the launcher passes its
+    /// per-run prefix).
+    #[arg(long)]
+    prefix: Option<String>,
+    /// Print the build fingerprint and exit (the launcher checks it).
+    #[arg(long, hide = true)]
+    build_id: bool,
+}
+
+/// Run stage `kind` as this process with the process's arguments; returns
+/// the exit status.
+pub fn main(kind: StageKind) -> i32 {
+    main_with(kind, std::env::args_os())
+}
+
+/// [`main`] with explicit arguments (the first is the program name).
+pub fn main_with<I, T>(kind: StageKind, argv: I) -> i32
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let name = format!("beliefbus-{}", kind.name());
+    let args = match Args::try_parse_from(argv) {
+        Ok(a) => a,
+        Err(e) if e.use_stderr() => {
+            // One line: clap's first line names the problem.
+            let msg = e.to_string();
+            eprintln!("{name}: {}", msg.lines().next().unwrap_or("bad arguments"));
+            return 2;
+        }
+        Err(e) => {
+            let _ = e.print();
+            return 0;
+        }
+    };
+    if args.build_id {
+        println!("{BUILD_ID}");
+        return 0;
+    }
+    let mut sets = args.sets.clone();
+    if let Some(p) = &args.prefix {
+        sets.push(format!("run.prefix=\"{p}\""));
+    }
+    let cfg = match config::load(&args.config, &sets) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("{name}: {e}");
+            return 2;
+        }
+    };
+    let stop = ipc::install_stop_handler();
+    let rt = crate::rt::apply_rt(&name, &cfg.stages.get(kind).rt());
+    for w in &rt.warnings {
+        eprintln!("warning: {w}");
+    }
+    let id = StageIdentity::this_process(kind, &rt);
+    match run_stage(&cfg.bus(), &cfg, id, &MonotonicClock, stop) {
+        Ok(_) => 0,
+        Err(e) => {
+            eprintln!("{name}: {e}");
+            1
+        }
+    }
+}

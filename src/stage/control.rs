@@ -1,0 +1,245 @@
+//! Control: on each new belief (latest value — a belief that arrives while
+//! the previous one is being processed supersedes any older unread one),
+//! advance the waypoint route by the believed position, compute the control
+//! with the configured backend, publish it with the trace extended by the
+//! control's in/out stamps, and only then let the backend prepare its next
+//! call (MPPI draws its noise there), keeping that work off the
+//! sensor→control path.
+//!
+//! A controller failure publishes the last good control (zero before the
+//! first) flagged `FALLBACK` and counts the reason. With backend `none`
+//! (estimation-only scenarios) the stage consumes beliefs and publishes
+//! nothing.
+
+use super::{
+    guarded, secs_since, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort,
+};
+use crate::control::cost::TrackingCost;
+use crate::control::mppi::Mppi;
+use crate::control::waypoints::WaypointTracker;
+use crate::control::{ControlError, Controller};
+use crate::ipc::{
+    control_status, run_loop, Belief, Bus, Control, Hop, Publisher, StageKind, StageStats,
+    Subscriber, Wake,
+};
+use crate::model::SdeModel;
+use crate::pipeline::config::ControlBackend;
+use crate::pipeline::{AnyModel, PipelineConfig};
+use crate::rt::Clock;
+use crate::{MAX_CONTROL, MAX_STATE};
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+/// Why a control computation failed (index into `rejected_by_reason`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(usize)]
+pub enum Reason {
+    Dimension = 0,
+    NonFinite = 1,
+    Model = 2,
+    Numerical = 3,
+}
+
+impl Reason {
+    /// Every reason, in index order.
+    pub const ALL: [Reason; 4] = [
+        Reason::Dimension,
+        Reason::NonFinite,
+        Reason::Model,
+        Reason::Numerical,
+    ];
+
+    /// Report name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Reason::Dimension => "dimension",
+            Reason::NonFinite => "non_finite",
+            Reason::Model => "model",
+            Reason::Numerical => "numerical",
+        }
+    }
+
+    fn of(e: &ControlError) -> Reason {
+        match e {
+            ControlError::Dimension { .. } => Reason::Dimension,
+            ControlError::NonFinite => Reason::NonFinite,
+            ControlError::Model(_) => Reason::Model,
+            ControlError::Numerical(_) => Reason::Numerical,
+        }
+    }
+}
+
+/// The ports of the control stage.
+pub struct ControlPorts {
+    pub belief: Subscriber<Belief>,
+    pub control: Publisher<Control>,
+    pub stats: StatsPort,
+}
+
+impl ControlPorts {
+    /// Open them on `bus`.
+    pub fn open(bus: &Bus, id: StageIdentity, cfg: &PipelineConfig) -> Result<Self, StageError> {
+        Ok(Self {
+            belief: bus.subscriber()?,
+            control: bus.publisher()?,
+            stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
+        })
+    }
+}
+
+/// A configured controller backend (concrete, so backend-specific steps
+/// such as MPPI's `prepare` are reachable).
+pub enum Backend {
+    Mppi(Box<Mppi<AnyModel>>),
+}
+
+impl Backend {
+    fn controller(&mut self) -> &mut dyn Controller {
+        match self {
+            Backend::Mppi(m) => m.as_mut(),
+        }
+    }
+
+    /// Work for the next call that does not depend on its belief.
+    fn prepare(&mut self) {
+        match self {
+            Backend::Mppi(m) => m.prepare(),
+        }
+    }
+}
+
+/// Build the configured backend (None for `none`). Its noise stream is
+/// seeded from `run.seed` mixed with `control.mppi.seed`.
+pub fn make_backend(cfg: &PipelineConfig) -> Result<Option<Backend>, StageError> {
+    let c = &cfg.control;
+    let build = |e: &dyn std::fmt::Display| StageError::Build {
+        what: "controller",
+        reason: e.to_string(),
+    };
+    match c.backend {
+        ControlBackend::None => Ok(None),
+        ControlBackend::Mppi => {
+            let model = cfg.model()?;
+            let cost = c
+                .cost
+                .as_ref()
+                .ok_or_else(|| build(&"control.cost missing"))?;
+            let tc = TrackingCost::new(&cost.q, &cost.qf, cost.barrier);
+            let mut mc = c.mppi.clone();
+            mc.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(mc.seed));
+            let m = Mppi::new(model, tc, &mc).map_err(|e| build(&e))?;
+            Ok(Some(Backend::Mppi(Box::new(m))))
+        }
+    }
+}
+
+/// Run the control stage until `stop`; returns its final stats.
+pub fn run(
+    mut ports: ControlPorts,
+    cfg: &PipelineConfig,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+) -> Result<StageStats, StageError> {
+    let rt = cfg.stages.get(StageKind::Control);
+    let mut m = Metrics::new(
+        rt.budget_ns(),
+        &[Hop::FilterToControl, Hop::SensorToControl],
+        (cfg.run.warmup_s * 1e9) as u64,
+    );
+    let model = cfg.model()?;
+    let dims = model.dims();
+    let axes = model.position_axes();
+    let mut backend = make_backend(cfg)?;
+    let mut route = match (&backend, &cfg.control.route) {
+        (Some(_), Some(r)) => Some(WaypointTracker::new(r.clone())),
+        _ => None,
+    };
+    let mut goal_set = false;
+    let mut seq = SeqTracker::default();
+    let mut epoch: Option<u64> = None;
+    let mut last_good = [0.0; MAX_CONTROL];
+    let mut u = [0.0; MAX_CONTROL];
+    let mut out = Control {
+        dim: dims.control as u32,
+        ..Control::default()
+    };
+    let mut out_seq = 0u64;
+    let mut err = None;
+    if let Some(b) = backend.as_mut() {
+        b.prepare();
+    }
+    ports.stats.publish(&m, clock.now_ns(), false)?;
+    let tick = Duration::from_secs_f64(cfg.run.stats_period_s.min(0.1));
+
+    let belief = &ports.belief;
+    let control = &mut ports.control;
+    let stats = &mut ports.stats;
+    run_loop(&[belief], rt.wake_mode(), tick, stop, |w| {
+        guarded(&mut err, || {
+            if w == Wake::Data {
+                let (latest, skipped) = belief.latest()?;
+                if let Some(b) = latest {
+                    let t_in = clock.now_ns();
+                    m.dropped += skipped + seq.observe(b.header.seq);
+                    let Some(backend) = backend.as_mut() else {
+                        m.processed += 1;
+                        m.budget.record(t_in, clock.now_ns());
+                        return Ok(());
+                    };
+                    let g = b.gaussian();
+                    if let Some(r) = route.as_mut() {
+                        let pos = [g.mean[axes[0]], g.mean[axes[axes.len() - 1]]];
+                        if r.update(pos) || !goal_set {
+                            let mut goal = [0.0; MAX_STATE];
+                            let wp = r.goal();
+                            goal[axes[0]] = wp[0];
+                            goal[axes[axes.len() - 1]] = wp[1];
+                            backend.controller().set_goal(&goal[..dims.state]);
+                            goal_set = true;
+                        }
+                        out.goal = r.goal();
+                        out.waypoints_reached = r.reached();
+                    }
+                    let epoch_ns = *epoch.get_or_insert(b.header.t_valid_ns);
+                    let t = secs_since(epoch_ns, b.header.t_valid_ns);
+                    let c = dims.control;
+                    match backend.controller().compute(t, &g, &mut u[..c]) {
+                        Ok(info) => {
+                            out.status = control_status::OK;
+                            out.cost = info.cost;
+                            last_good[..c].copy_from_slice(&u[..c]);
+                        }
+                        Err(e) => {
+                            m.reject(Reason::of(&e) as usize);
+                            out.status = control_status::FALLBACK;
+                            out.cost = f64::NAN;
+                            u[..c].copy_from_slice(&last_good[..c]);
+                        }
+                    }
+                    out.u = u;
+                    out.trace = b.trace;
+                    out.trace.t_control_in_ns = t_in;
+                    out.header.seq = out_seq;
+                    out.header.t_valid_ns = b.header.t_valid_ns;
+                    let now = clock.now_ns();
+                    out.header.t_pub_ns = now;
+                    out.trace.t_control_out_ns = now;
+                    control.publish(&out)?;
+                    out_seq += 1;
+                    m.processed += 1;
+                    m.budget.record(t_in, now);
+                    m.record_hops(&out.trace);
+                    // Off the critical path: the next call's noise.
+                    backend.prepare();
+                }
+            }
+            stats.tick(&m, clock.now_ns())?;
+            Ok(())
+        })
+    })?;
+    let last = ports.stats.publish(&m, clock.now_ns(), true)?;
+    match err {
+        Some(e) if !stopped(stop) => Err(e),
+        _ => Ok(last),
+    }
+}

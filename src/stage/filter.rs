@@ -1,0 +1,224 @@
+//! Filter: one Bayes-filter step per observation (thesis eq. 3.6) —
+//! predict the belief to the measurement time under the latest control
+//! (held constant since the previous observation), update it with the
+//! measurement, publish the Gaussian summary with the trace extended by the
+//! filter's in/out stamps. The backend comes from `filter.backend`.
+//!
+//! Time: the filter runs on seconds since the first observation it sees
+//! (which it takes as the time of the prior). A step the filter refuses is
+//! counted by reason: a refused prediction publishes nothing, a refused
+//! update publishes the prediction flagged `UPDATE_REFUSED`.
+
+use super::{
+    guarded, secs_since, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort,
+};
+use crate::belief::Gaussian;
+use crate::filter::ekf::Ekf;
+use crate::filter::pf::Pf;
+use crate::filter::{BayesFilter, FilterError};
+use crate::ipc::{
+    belief_status, run_loop, Belief, Bus, Control, Hop, Observation, Publisher, StageKind,
+    StageStats, Subscriber, Wake,
+};
+use crate::model::{Measurement, ObsMask, SdeModel};
+use crate::pipeline::config::FilterBackend;
+use crate::pipeline::PipelineConfig;
+use crate::rt::Clock;
+use crate::MAX_CONTROL;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+/// Why the filter refused a step (index into `rejected_by_reason`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(usize)]
+pub enum Reason {
+    TimeBackwards = 0,
+    Dimension = 1,
+    NonFinite = 2,
+    /// Every particle/hypothesis has zero likelihood.
+    Degenerate = 3,
+    Numerical = 4,
+}
+
+impl Reason {
+    /// Every reason, in index order.
+    pub const ALL: [Reason; 5] = [
+        Reason::TimeBackwards,
+        Reason::Dimension,
+        Reason::NonFinite,
+        Reason::Degenerate,
+        Reason::Numerical,
+    ];
+
+    /// Report name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Reason::TimeBackwards => "time_backwards",
+            Reason::Dimension => "dimension",
+            Reason::NonFinite => "non_finite",
+            Reason::Degenerate => "degenerate",
+            Reason::Numerical => "numerical",
+        }
+    }
+
+    fn of(e: &FilterError) -> Reason {
+        match e {
+            FilterError::TimeBackwards { .. } => Reason::TimeBackwards,
+            FilterError::Dimension { .. } => Reason::Dimension,
+            FilterError::NonFinite(_) => Reason::NonFinite,
+            FilterError::Degenerate => Reason::Degenerate,
+            FilterError::Numerical(_) => Reason::Numerical,
+        }
+    }
+}
+
+/// The ports of the filter stage.
+pub struct FilterPorts {
+    pub obs: Subscriber<Observation>,
+    /// Latest control (no wake-up: it is read when an observation arrives).
+    pub control: Subscriber<Control>,
+    pub belief: Publisher<Belief>,
+    pub stats: StatsPort,
+}
+
+impl FilterPorts {
+    /// Open them on `bus`.
+    pub fn open(bus: &Bus, id: StageIdentity, cfg: &PipelineConfig) -> Result<Self, StageError> {
+        Ok(Self {
+            obs: bus.subscriber()?,
+            control: bus.subscriber_with(1, false)?,
+            belief: bus.publisher()?,
+            stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
+        })
+    }
+}
+
+/// The prior of `cfg`: N(prior_mean, diag(prior_std²)).
+pub fn prior(cfg: &PipelineConfig) -> Gaussian {
+    Gaussian::diagonal(&cfg.filter.prior_mean, &cfg.filter.prior_std)
+}
+
+/// Build the configured backend at time `t0` from the prior. The filter's
+/// random stream is seeded from `run.seed` mixed with `filter.pf.seed`.
+pub fn make_filter(cfg: &PipelineConfig, t0: f64) -> Result<Box<dyn BayesFilter>, StageError> {
+    let model = cfg.model()?;
+    let prior = prior(cfg);
+    let build = |e: &dyn std::fmt::Display| StageError::Build {
+        what: "filter",
+        reason: e.to_string(),
+    };
+    Ok(match cfg.filter.backend {
+        FilterBackend::Pf => {
+            let mut pf = cfg.filter.pf.clone();
+            pf.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(pf.seed));
+            Box::new(Pf::new(model, &pf, &prior, t0).map_err(|e| build(&e))?)
+        }
+        FilterBackend::Ekf => {
+            Box::new(Ekf::new(model, &cfg.filter.ekf, &prior, t0).map_err(|e| build(&e))?)
+        }
+    })
+}
+
+/// Run the filter until `stop`; returns its final stats.
+pub fn run(
+    mut ports: FilterPorts,
+    cfg: &PipelineConfig,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+) -> Result<StageStats, StageError> {
+    let rt = cfg.stages.get(StageKind::Filter);
+    let mut m = Metrics::new(
+        rt.budget_ns(),
+        &[Hop::IngestToFilter, Hop::SensorToBelief],
+        (cfg.run.warmup_s * 1e9) as u64,
+    );
+    let mut filter = make_filter(cfg, 0.0)?;
+    let dims = filter.dims();
+    let model_std = {
+        let mut s = [0.0; crate::MAX_OBS];
+        cfg.model()?.obs_std(&mut s[..dims.obs]);
+        s
+    };
+    let mut u = [0.0; MAX_CONTROL];
+    let mut epoch: Option<u64> = None;
+    let mut seq = SeqTracker::default();
+    let mut out = Belief::default();
+    let mut out_seq = 0u64;
+    let mut err = None;
+    ports.stats.publish(&m, clock.now_ns(), false)?;
+    let tick = Duration::from_secs_f64(cfg.run.stats_period_s.min(0.1));
+
+    let obs_sub = &ports.obs;
+    let control = &ports.control;
+    let belief = &mut ports.belief;
+    let stats = &mut ports.stats;
+    run_loop(&[obs_sub], rt.wake_mode(), tick, stop, |w| {
+        guarded(&mut err, || {
+            if w == Wake::Data {
+                while let Some(o) = obs_sub.receive()? {
+                    let t_in = clock.now_ns();
+                    m.dropped += seq.observe(o.header.seq);
+                    if let (Some(c), _) = control.latest()? {
+                        let n = (c.dim as usize).min(dims.control);
+                        u[..n].copy_from_slice(&c.u[..n]);
+                    }
+                    let epoch_ns = *epoch.get_or_insert(o.header.t_valid_ns);
+                    let t = secs_since(epoch_ns, o.header.t_valid_ns);
+                    if let Err(e) = filter.predict(t, &u[..dims.control]) {
+                        m.reject(Reason::of(&e) as usize);
+                        continue;
+                    }
+                    let std = if o.has_std != 0 {
+                        // Unflagged components keep the model's σ.
+                        let mut s = model_std;
+                        for i in ObsMask(o.mask).iter().take_while(|&i| i < dims.obs) {
+                            s[i] = o.std[i];
+                        }
+                        Some(s)
+                    } else {
+                        None
+                    };
+                    let meas = Measurement {
+                        y: &o.y[..dims.obs],
+                        mask: ObsMask(o.mask),
+                        std: std.as_ref().map(|s| &s[..dims.obs]),
+                    };
+                    out.status = 0;
+                    match filter.update(&meas) {
+                        Ok(info) => {
+                            out.ess = info.ess;
+                            out.log_evidence = info.log_evidence;
+                            if info.resampled {
+                                out.status |= belief_status::RESAMPLED;
+                            }
+                        }
+                        Err(e) => {
+                            m.reject(Reason::of(&e) as usize);
+                            out.status |= belief_status::UPDATE_REFUSED;
+                        }
+                    }
+                    out.set_gaussian(&filter.belief());
+                    out.trace = o.trace;
+                    out.trace.t_filter_in_ns = t_in;
+                    out.header.seq = out_seq;
+                    out.header.t_valid_ns = o.header.t_valid_ns;
+                    let now = clock.now_ns();
+                    out.header.t_pub_ns = now;
+                    out.trace.t_filter_out_ns = now;
+                    belief.publish(&out)?;
+                    out_seq += 1;
+                    m.processed += 1;
+                    m.budget.record(t_in, now);
+                    m.record_hops(&out.trace);
+                }
+            }
+            stats.tick(&m, clock.now_ns())?;
+            Ok(())
+        })
+    })?;
+    let last = ports.stats.publish(&m, clock.now_ns(), true)?;
+    match err {
+        Some(e) if !stopped(stop) => Err(e),
+        _ => Ok(last),
+    }
+}

@@ -1,0 +1,309 @@
+//! Ingest: validates every sensor sample and forwards a time-ordered stream
+//! of observations to the filter. A bad sample is counted by reason and
+//! dropped; it can never crash or stall the pipeline (DESIGN.md).
+//!
+//! Checks, in order: known channel; `dim` equals the channel's number of
+//! components; values finite; per-sample σ (if flagged) finite and > 0 and a
+//! measurement time that is set and not in the future; sequence number
+//! above the channel's last (else `duplicate`); measurement time not before
+//! the channel's last (`time_backwards`); age below `ingest.max_age_s`
+//! (`too_old`); rate within the channel's `max_rate_hz` (token bucket of 3
+//! samples by measurement time, `rate`). Samples drained together are
+//! sorted by measurement time, and one older than the last forwarded
+//! observation is rejected as `time_backwards` (the filter cannot go back).
+//! A bounded reorder window across channels arrives with multi-sensor
+//! ingest (issue 7).
+
+use super::{guarded, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort};
+use crate::ipc::{
+    run_loop, Bus, Hop, Observation, Publisher, SensorSample, StageKind, StageStats, Subscriber,
+    Wake, SENSOR_MAX_DIM,
+};
+use crate::model::SdeModel;
+use crate::pipeline::config::ChannelConfig;
+use crate::pipeline::PipelineConfig;
+use crate::rt::Clock;
+use crate::MAX_OBS;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+/// Why ingest rejected a sample (index into `rejected_by_reason`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(usize)]
+pub enum Reason {
+    Dimension = 0,
+    NonFinite = 1,
+    TimeBackwards = 2,
+    TooOld = 3,
+    Duplicate = 4,
+    UnknownChannel = 5,
+    Rate = 6,
+    /// Invalid σ, or a measurement time of 0 or in the future.
+    Invalid = 7,
+}
+
+impl Reason {
+    /// Every reason, in index order.
+    pub const ALL: [Reason; 8] = [
+        Reason::Dimension,
+        Reason::NonFinite,
+        Reason::TimeBackwards,
+        Reason::TooOld,
+        Reason::Duplicate,
+        Reason::UnknownChannel,
+        Reason::Rate,
+        Reason::Invalid,
+    ];
+
+    /// Report name (`stages.ingest.rejected_by_reason.<name>`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Reason::Dimension => "dimension",
+            Reason::NonFinite => "non_finite",
+            Reason::TimeBackwards => "time_backwards",
+            Reason::TooOld => "too_old",
+            Reason::Duplicate => "duplicate",
+            Reason::UnknownChannel => "unknown_channel",
+            Reason::Rate => "rate",
+            Reason::Invalid => "invalid",
+        }
+    }
+}
+
+/// Burst the rate limiter tolerates (samples).
+const RATE_BURST: f64 = 3.0;
+/// Largest batch sorted at once (the sensor subscriber's buffer).
+const BATCH: usize = 64;
+
+/// The ports of the ingest stage.
+pub struct IngestPorts {
+    pub sensor: Subscriber<SensorSample>,
+    pub obs: Publisher<Observation>,
+    pub stats: StatsPort,
+}
+
+impl IngestPorts {
+    /// Open them on `bus`.
+    pub fn open(bus: &Bus, id: StageIdentity, cfg: &PipelineConfig) -> Result<Self, StageError> {
+        Ok(Self {
+            sensor: bus.subscriber()?,
+            obs: bus.publisher()?,
+            stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
+        })
+    }
+}
+
+#[derive(Clone, Debug)]
+struct Channel {
+    cfg: ChannelConfig,
+    mask: u32,
+    seq: SeqTracker,
+    last_seq: Option<u64>,
+    last_t: u64,
+    tokens: f64,
+    tokens_t: u64,
+}
+
+/// The validation state of ingest (separate from the loop so it can be
+/// tested on plain samples).
+#[derive(Debug)]
+pub struct Validator {
+    channels: Vec<Channel>,
+    obs_dim: usize,
+    max_age_ns: u64,
+    last_forwarded_t: u64,
+}
+
+impl Validator {
+    /// A validator for `cfg`'s channels and model.
+    pub fn new(cfg: &PipelineConfig) -> Result<Self, StageError> {
+        let dims = cfg.model()?.dims();
+        let channels = cfg
+            .channels(dims.obs)
+            .into_iter()
+            .map(|c| Channel {
+                mask: c.components.iter().fold(0u32, |m, &k| m | (1 << k)),
+                cfg: c,
+                seq: SeqTracker::default(),
+                last_seq: None,
+                last_t: 0,
+                tokens: RATE_BURST,
+                tokens_t: 0,
+            })
+            .collect();
+        Ok(Self {
+            channels,
+            obs_dim: dims.obs,
+            max_age_ns: (cfg.ingest.max_age_s * 1e9) as u64,
+            last_forwarded_t: 0,
+        })
+    }
+
+    /// Check one sample received at `now_ns`; on success fill `obs` (y,
+    /// mask, σ, channel, the sensor part of the trace) and return the
+    /// number of samples of this channel lost before it (sequence gap).
+    pub fn check(
+        &mut self,
+        s: &SensorSample,
+        now_ns: u64,
+        obs: &mut Observation,
+    ) -> Result<u64, Reason> {
+        let Some(ch) = self.channels.iter_mut().find(|c| c.cfg.id == s.channel) else {
+            return Err(Reason::UnknownChannel);
+        };
+        let n = ch.cfg.components.len();
+        if s.dim as usize != n || n > SENSOR_MAX_DIM {
+            return Err(Reason::Dimension);
+        }
+        if s.values[..n].iter().any(|v| !v.is_finite()) {
+            return Err(Reason::NonFinite);
+        }
+        if s.has_noise_std()
+            && s.noise_std[..n]
+                .iter()
+                .any(|v| !(v.is_finite() && *v > 0.0))
+        {
+            return Err(Reason::Invalid);
+        }
+        if s.t_meas_ns == 0 || s.t_meas_ns > now_ns.saturating_add(self.max_age_ns) {
+            return Err(Reason::Invalid);
+        }
+        if ch.last_seq.is_some_and(|l| s.seq <= l) {
+            return Err(Reason::Duplicate);
+        }
+        if s.t_meas_ns < ch.last_t {
+            return Err(Reason::TimeBackwards);
+        }
+        if now_ns.saturating_sub(s.t_meas_ns) > self.max_age_ns {
+            return Err(Reason::TooOld);
+        }
+        // Token bucket on measurement time.
+        let refill = if ch.tokens_t == 0 {
+            RATE_BURST
+        } else {
+            (s.t_meas_ns - ch.tokens_t) as f64 * 1e-9 * ch.cfg.max_rate_hz
+        };
+        let tokens = (ch.tokens + refill).min(RATE_BURST);
+        ch.tokens_t = s.t_meas_ns;
+        if tokens < 1.0 {
+            ch.tokens = tokens;
+            return Err(Reason::Rate);
+        }
+        ch.tokens = tokens - 1.0;
+        let gap = ch.seq.observe(s.seq);
+        ch.last_seq = Some(s.seq);
+        ch.last_t = s.t_meas_ns;
+
+        let m = self.obs_dim;
+        obs.y = [0.0; MAX_OBS];
+        obs.std = [0.0; MAX_OBS];
+        for (j, &k) in ch.cfg.components.iter().enumerate() {
+            obs.y[k] = s.values[j];
+            if s.has_noise_std() {
+                obs.std[k] = s.noise_std[j];
+            }
+        }
+        obs.channel = s.channel;
+        obs.mask = ch.mask;
+        obs.dim = m as u32;
+        obs.has_std = s.has_noise_std() as u32;
+        obs.header.t_valid_ns = s.t_meas_ns;
+        obs.trace = Default::default();
+        obs.trace.sensor_seq = s.seq;
+        obs.trace.sensor_channel = s.channel;
+        obs.trace.t_meas_ns = s.t_meas_ns;
+        obs.trace.t_sensor_pub_ns = if s.t_pub_ns != 0 {
+            s.t_pub_ns
+        } else {
+            s.t_meas_ns
+        };
+        Ok(gap)
+    }
+
+    /// Whether an observation measured at `t` may be forwarded after those
+    /// already forwarded; if so it becomes the newest.
+    pub fn admit_in_order(&mut self, t: u64) -> bool {
+        if t < self.last_forwarded_t {
+            return false;
+        }
+        self.last_forwarded_t = t;
+        true
+    }
+}
+
+/// Run ingest until `stop`; returns its final stats.
+pub fn run(
+    mut ports: IngestPorts,
+    cfg: &PipelineConfig,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+) -> Result<StageStats, StageError> {
+    let rt = cfg.stages.get(StageKind::Ingest);
+    let mut m = Metrics::new(
+        rt.budget_ns(),
+        &[Hop::SensorToIngest],
+        (cfg.run.warmup_s * 1e9) as u64,
+    );
+    let mut v = Validator::new(cfg)?;
+    let mut batch = [Observation::default(); BATCH];
+    let mut out_seq = 0u64;
+    let mut err: Option<StageError> = None;
+    ports.stats.publish(&m, clock.now_ns(), false)?;
+    let tick = Duration::from_secs_f64(cfg.run.stats_period_s.min(0.1));
+
+    let sensor = &ports.sensor;
+    let obs = &mut ports.obs;
+    let stats = &mut ports.stats;
+    run_loop(&[sensor], rt.wake_mode(), tick, stop, |w| {
+        guarded(&mut err, || {
+            if w == Wake::Data {
+                loop {
+                    let t_in = clock.now_ns();
+                    let mut n = 0;
+                    while n < BATCH {
+                        let Some(s) = sensor.receive()? else { break };
+                        let o = &mut batch[n];
+                        match v.check(&s, t_in, o) {
+                            Ok(gap) => {
+                                m.dropped += gap;
+                                o.trace.t_ingest_in_ns = t_in;
+                                n += 1;
+                            }
+                            Err(reason) => m.reject(reason as usize),
+                        }
+                    }
+                    if n == 0 {
+                        break;
+                    }
+                    let b = &mut batch[..n];
+                    b.sort_by_key(|o| o.header.t_valid_ns);
+                    for o in b.iter_mut() {
+                        if !v.admit_in_order(o.header.t_valid_ns) {
+                            m.reject(Reason::TimeBackwards as usize);
+                            continue;
+                        }
+                        let now = clock.now_ns();
+                        o.header.seq = out_seq;
+                        o.header.t_pub_ns = now;
+                        o.trace.t_ingest_out_ns = now;
+                        obs.publish(o)?;
+                        out_seq += 1;
+                        m.processed += 1;
+                        m.budget.record(o.trace.t_ingest_in_ns, now);
+                        m.record_hops(&o.trace);
+                    }
+                    if n < BATCH {
+                        break;
+                    }
+                }
+            }
+            stats.tick(&m, clock.now_ns())?;
+            Ok(())
+        })
+    })?;
+    let last = ports.stats.publish(&m, clock.now_ns(), true)?;
+    match err {
+        Some(e) if !stopped(stop) => Err(e),
+        _ => Ok(last),
+    }
+}

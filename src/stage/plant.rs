@@ -1,0 +1,245 @@
+//! Plant: the simulated system, a sensor publisher like any other.
+//!
+//! Every sensor period Δ = 1/`plant.sensor_rate_hz` it wakes at the absolute
+//! time t_k = t_0 + kΔ, integrates the true SDE over (t_{k−1}, t_k] with
+//! Euler–Maruyama steps of at most `plant.integration_dt`
+//! (x ← x + f(x, u) h + F(x) √h ξ), draws the measurement
+//! y_k = g(x(t_k)) + v_k, publishes it on `sensor` (measurement time t_k),
+//! then publishes `truth` for evaluation.
+//!
+//! Controls act as a zero-order hold from their publish time: controls that
+//! arrived during the interval split it into segments, each integrated with
+//! the control in force. (The plant reads them at its tick, so it never needs
+//! to be woken by the controller.)
+
+use super::{stopped, Metrics, StageError, StageIdentity, StatsPort};
+use crate::ipc::{Bus, Control, Publisher, SensorSample, StageKind, StageStats, Subscriber, Truth};
+use crate::model::discrete::em_integrate;
+use crate::model::{simulate_observation, SdeModel};
+use crate::pipeline::PipelineConfig;
+use crate::rng::{self, SimRng};
+use crate::rt::Clock;
+use crate::{MAX_CONTROL, MAX_OBS, MAX_STATE};
+use std::sync::atomic::AtomicBool;
+
+/// RNG stream id of the plant (mixed with `run.seed`).
+pub const PLANT_STREAM: u64 = 0x0050_4C41_4E54; // "PLANT"
+/// Controls buffered between two ticks.
+const CONTROL_BUFFER: usize = 16;
+/// A plant this many periods late skips ahead instead of catching up
+/// sample by sample.
+const MAX_BEHIND: u64 = 20;
+
+/// The ports of the plant.
+pub struct PlantPorts {
+    /// Controls, buffered (no wake-up: read at each tick).
+    pub control: Subscriber<Control>,
+    pub sensor: Publisher<SensorSample>,
+    pub truth: Publisher<Truth>,
+    pub stats: StatsPort,
+}
+
+impl PlantPorts {
+    /// Open them on `bus`.
+    pub fn open(bus: &Bus, id: StageIdentity, cfg: &PipelineConfig) -> Result<Self, StageError> {
+        Ok(Self {
+            control: bus.subscriber_with(CONTROL_BUFFER, false)?,
+            sensor: bus.publisher()?,
+            truth: bus.publisher()?,
+            stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
+        })
+    }
+}
+
+/// The simulation state, separate from the ports so it can be tested alone.
+#[derive(Debug)]
+pub struct Simulator<M: SdeModel> {
+    model: M,
+    x: [f64; MAX_STATE],
+    u: [f64; MAX_CONTROL],
+    rng: SimRng,
+    max_dt: f64,
+}
+
+impl<M: SdeModel> Simulator<M> {
+    /// Start at `x0` with zero control.
+    pub fn new(model: M, x0: &[f64], seed: u64, max_dt: f64) -> Self {
+        let mut x = [0.0; MAX_STATE];
+        x[..x0.len()].copy_from_slice(x0);
+        Self {
+            model,
+            x,
+            u: [0.0; MAX_CONTROL],
+            rng: rng::stream(seed, PLANT_STREAM),
+            max_dt,
+        }
+    }
+
+    /// The true state.
+    pub fn state(&self) -> &[f64] {
+        &self.x[..self.model.dims().state]
+    }
+
+    /// The control in force.
+    pub fn control(&self) -> &[f64] {
+        &self.u[..self.model.dims().control]
+    }
+
+    /// Apply `u` from now on.
+    pub fn set_control(&mut self, u: &[f64]) {
+        let n = self.model.dims().control.min(u.len());
+        self.u[..n].copy_from_slice(&u[..n]);
+    }
+
+    /// Integrate over `dt` seconds with the control in force.
+    pub fn advance(&mut self, dt: f64) {
+        let d = self.model.dims();
+        em_integrate(
+            &self.model,
+            &mut self.x[..d.state],
+            &self.u[..d.control],
+            dt,
+            self.max_dt,
+            &mut self.rng,
+        );
+    }
+
+    /// Draw a measurement of the current state into `y`.
+    pub fn measure(&mut self, y: &mut [f64]) {
+        let d = self.model.dims();
+        simulate_observation(&self.model, &self.x[..d.state], &mut self.rng, y);
+    }
+
+    /// The model.
+    pub fn model(&self) -> &M {
+        &self.model
+    }
+}
+
+/// Run the plant until `stop`; returns its final stats.
+pub fn run(
+    ports: PlantPorts,
+    cfg: &PipelineConfig,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+) -> Result<StageStats, StageError> {
+    run_for(ports, cfg, clock, stop, None)
+}
+
+/// [`run`], stopping after at most `max_samples` samples.
+pub fn run_for(
+    mut ports: PlantPorts,
+    cfg: &PipelineConfig,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+    max_samples: Option<u64>,
+) -> Result<StageStats, StageError> {
+    let rt = cfg.stages.get(StageKind::Plant);
+    let warmup_ns = (cfg.run.warmup_s * 1e9) as u64;
+    let mut m = Metrics::new(rt.budget_ns(), &[], warmup_ns);
+    let model = cfg.model()?;
+    let dims = model.dims();
+    let pos_axes = model.position_axes();
+    let mut sim = Simulator::new(
+        model,
+        &cfg.plant.initial_state,
+        cfg.run.seed,
+        cfg.plant.integration_dt,
+    );
+    let period_ns = (1e9 / cfg.plant.sensor_rate_hz).round().max(1.0) as u64;
+    let mut pending = [Control::default(); CONTROL_BUFFER];
+    let mut goal: Option<[f64; 2]> = None;
+    let mut y = [0.0; MAX_OBS];
+    let mut sample = SensorSample {
+        channel: cfg.plant.channel,
+        dim: dims.obs as u32,
+        ..SensorSample::default()
+    };
+    let mut truth = Truth {
+        channel: cfg.plant.channel,
+        dim: dims.state as u32,
+        obs_dim: dims.obs as u32,
+        control_dim: dims.control as u32,
+        ..Truth::default()
+    };
+
+    ports.stats.publish(&m, clock.now_ns(), false)?;
+    let t0 = clock.now_ns();
+    let mut t_prev = t0;
+    let mut k: u64 = 0;
+    while !stopped(stop) && max_samples.is_none_or(|n| k < n) {
+        let mut t_k = t0 + (k + 1) * period_ns;
+        let now = clock.now_ns();
+        if now > t_k + MAX_BEHIND * period_ns {
+            // Far behind (e.g. the machine stalled): skip to the present.
+            let skip = (now - t_k) / period_ns;
+            m.dropped += skip;
+            k += skip;
+            t_k += skip * period_ns;
+        }
+        clock.sleep_until_ns(t_k);
+        if clock.now_ns() < t_k {
+            continue; // woken early by a signal: re-check stop
+        }
+        let t_wake = clock.now_ns();
+
+        // Controls published up to t_k, in publish order, each from its
+        // publish time (zero-order hold).
+        let mut n = 0;
+        while n < CONTROL_BUFFER {
+            let Some(c) = ports.control.receive()? else {
+                break;
+            };
+            pending[n] = c;
+            n += 1;
+        }
+        m.controls_received += n as u64;
+        let ctl = &mut pending[..n];
+        ctl.sort_by_key(|c| c.header.t_pub_ns);
+        let mut t = t_prev;
+        for c in ctl.iter() {
+            let tc = c.header.t_pub_ns.clamp(t, t_k);
+            if tc > t {
+                sim.advance((tc - t) as f64 * 1e-9);
+                t = tc;
+            }
+            sim.set_control(&c.u[..(c.dim as usize).min(MAX_CONTROL)]);
+            goal = Some(c.goal);
+            m.waypoints_reached = c.waypoints_reached;
+        }
+        if t_k > t {
+            sim.advance((t_k - t) as f64 * 1e-9);
+        }
+        t_prev = t_k;
+
+        sim.measure(&mut y[..dims.obs]);
+        sample.seq = k;
+        sample.t_meas_ns = t_k;
+        sample.values[..dims.obs].copy_from_slice(&y[..dims.obs]);
+        let t_pub = clock.now_ns();
+        sample.t_pub_ns = t_pub;
+        ports.sensor.publish(&sample)?;
+
+        truth.header.seq = k;
+        truth.header.t_valid_ns = t_k;
+        truth.header.t_pub_ns = clock.now_ns();
+        truth.x[..dims.state].copy_from_slice(sim.state());
+        truth.u[..dims.control].copy_from_slice(sim.control());
+        truth.y[..dims.obs].copy_from_slice(&y[..dims.obs]);
+        ports.truth.publish(&truth)?;
+
+        m.processed += 1;
+        m.budget.record(t_wake, t_pub);
+        if m.past_warmup(t_k) {
+            m.processed_after_warmup += 1;
+            if let (Some(g), 2) = (goal, pos_axes.len()) {
+                let x = sim.state();
+                m.goal_distance_sum += (x[pos_axes[0]] - g[0]).hypot(x[pos_axes[1]] - g[1]);
+                m.goal_distance_count += 1;
+            }
+        }
+        k += 1;
+        ports.stats.tick(&m, clock.now_ns())?;
+    }
+    Ok(ports.stats.publish(&m, clock.now_ns(), true)?)
+}
