@@ -17,7 +17,16 @@ fn the_timer_baseline_runs_on_every_core_and_reports_blocks() {
     std::fs::create_dir_all(&dir).unwrap();
     let json = dir.join("j.json");
     let out = Command::new(env!("CARGO_BIN_EXE_beliefbus"))
-        .args(["jitter", "--duration", "1.2", "--rate", "500", "--stress", "1"])
+        .args([
+            "jitter",
+            "--timer-only",
+            "--duration",
+            "1.2",
+            "--rate",
+            "500",
+            "--stress",
+            "1",
+        ])
         .arg("--json")
         .arg(&json)
         .arg("--plot")
@@ -26,7 +35,11 @@ fn the_timer_baseline_runs_on_every_core_and_reports_blocks() {
         .arg(dir.join("hdr"))
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let block: BTreeSet<String> = ["count", "p50_us", "p90_us", "p99_us", "p999_us", "max_us"]
         .iter()
@@ -38,6 +51,7 @@ fn the_timer_baseline_runs_on_every_core_and_reports_blocks() {
         "period_jitter",
         "latency",
         "deadline_misses",
+        "missed_periods",
         "budget_us",
         "ratio_p50",
         "ratio_p99",
@@ -75,11 +89,69 @@ fn the_timer_baseline_runs_on_every_core_and_reports_blocks() {
     for c in 0..n {
         for what in ["wake", "period-jitter"] {
             let f = dir.join("hdr").join(format!("timer-core{c}.{what}.hlog"));
-            assert!(std::fs::read_to_string(&f).unwrap().contains("#[StartTime:"));
+            assert!(std::fs::read_to_string(&f)
+                .unwrap()
+                .contains("#[StartTime:"));
         }
     }
     assert!(std::fs::read_to_string(dir.join("j.svg"))
         .unwrap()
         .contains("timer core 0"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_pipeline_is_measured_against_the_timer_in_the_same_run() {
+    let dir = std::env::temp_dir().join(format!("bb-jitp-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("j.json");
+    // The crate root holds configs/ (cargo runs tests from there).
+    let out = Command::new(env!("CARGO_BIN_EXE_beliefbus"))
+        .args(["jitter", "--duration", "1", "--set", "filter.backend=ekf"])
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["rate_hz"], 1000.0, "the rate of configs/ship-1khz.toml");
+    assert_eq!(v["shm_left"], 0);
+    let paths = v["paths"].as_array().unwrap();
+    let names: Vec<&str> = paths.iter().map(|p| p["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["control", "sensor"]);
+    let base = &v["baseline"];
+    for p in paths {
+        assert_eq!(keys(p), keys(base));
+        assert!(p["period_jitter"]["count"].as_u64().unwrap() > 0, "{p}");
+        assert!(p["latency"]["count"].as_u64().unwrap() > 0, "{p}");
+        // Ratios are the blocks' quotients.
+        for (r, block, q) in [
+            ("ratio_p50", "period_jitter", "p50_us"),
+            ("ratio_p99", "period_jitter", "p99_us"),
+            ("latency_ratio_p50", "latency", "p50_us"),
+            ("latency_ratio_p99", "latency", "p99_us"),
+        ] {
+            let want = p[block][q].as_f64().unwrap() / base[block][q].as_f64().unwrap();
+            let got = p[r].as_f64().unwrap();
+            assert!((got - want).abs() <= 1e-12 * want, "{r}: {got} vs {want}");
+        }
+    }
+    let control = &paths[0];
+    // The end-to-end budget is ingest + filter + control of the config.
+    assert_eq!(control["budget_us"], 50.0 + 300.0 + 700.0);
+    let pipe = &v["pipeline"];
+    assert!(pipe["controls"].as_u64().unwrap() > 0);
+    for stage in ["ingest", "filter", "control", "refine", "plant"] {
+        let s = &pipe["stages"][stage];
+        assert!(s["processed"].as_u64().unwrap() > 0, "{stage}");
+        assert!(s["deadline_misses"].is_u64(), "{stage}");
+        assert!(s["budget_us"].as_f64().unwrap() > 0.0, "{stage}");
+    }
+    assert!(pipe["hops"]["sensor->control"]["count"].as_u64().unwrap() > 0);
     std::fs::remove_dir_all(&dir).unwrap();
 }

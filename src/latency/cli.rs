@@ -3,15 +3,20 @@
 //! line and exits with code 2.
 
 use super::hdr::file_stem;
-use super::jitter::{baseline_entries, timer_baseline, JitterReport, TimerConfig};
+use super::hdr::HdrLog;
+use super::jitter::{
+    baseline_entries, timer_baseline, JitterEntry, JitterReport, PipelineInfo, TimerConfig,
+};
 use super::load::LoadSample;
 use super::paths::{Mode, PathKind};
+use super::pipeline::{self, PipelineJitterConfig};
 use super::plot::{write_svg, Row, Series};
 use super::pong::{serve, PongConfig};
 use super::report::now_iso8601;
 use super::run::{run, LatencyConfig, LatencyRun};
 use super::stress::Stress;
 use super::LatencyError;
+use crate::rt::LatencyHist;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -57,10 +62,11 @@ pub struct LatencyArgs {
 /// `beliefbus jitter`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct JitterArgs {
-    /// Timer wake-ups per second.
-    #[arg(long, default_value_t = 1000.0)]
-    pub rate: f64,
-    /// Seconds to measure.
+    /// Wake-ups (timer) and sensor samples (pipeline) per second (default:
+    /// the config's sensor rate; 1000 with --timer-only).
+    #[arg(long, value_name = "HZ")]
+    pub rate: Option<f64>,
+    /// Seconds to measure, for the timer and again for the pipeline.
     #[arg(long, default_value_t = 10.0)]
     pub duration: f64,
     /// Run N busy CPU threads and N memory-bandwidth threads meanwhile.
@@ -81,7 +87,19 @@ pub struct JitterArgs {
     /// Cores to measure, `A,B,...` (default: every core).
     #[arg(long, value_name = "A,B,...")]
     pub cores: Option<String>,
+    /// Pipeline config to run.
+    #[arg(long, default_value = DEFAULT_JITTER_CONFIG, value_name = "FILE")]
+    pub config: PathBuf,
+    /// Override one config key by dotted path (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub sets: Vec<String>,
+    /// Only the timer baseline, no pipeline.
+    #[arg(long)]
+    pub timer_only: bool,
 }
+
+/// The pipeline `beliefbus jitter` runs by default (1 kHz closed loop).
+pub const DEFAULT_JITTER_CONFIG: &str = "configs/ship-1khz.toml";
 
 /// The hidden `latency-pong` subcommand (started by `latency`).
 #[derive(clap::Args, Debug, Clone)]
@@ -243,8 +261,8 @@ pub fn latency(a: LatencyArgs) -> Result<()> {
     Ok(())
 }
 
-/// The timer configuration of the command line.
-pub fn timer_config(a: &JitterArgs) -> Result<TimerConfig, LatencyError> {
+/// The timer configuration of the command line at `rate_hz`.
+pub fn timer_config(a: &JitterArgs, rate_hz: f64) -> Result<TimerConfig, LatencyError> {
     let cores = match a.cores.as_deref() {
         Some(s) => parse_cores(s)?,
         None => {
@@ -262,7 +280,7 @@ pub fn timer_config(a: &JitterArgs) -> Result<TimerConfig, LatencyError> {
         }
     };
     let cfg = TimerConfig {
-        rate_hz: a.rate,
+        rate_hz,
         duration: duration(a.duration)?,
         cores,
         fifo: (a.fifo > 0).then_some(a.fifo),
@@ -272,13 +290,50 @@ pub fn timer_config(a: &JitterArgs) -> Result<TimerConfig, LatencyError> {
     Ok(cfg)
 }
 
+/// The pipeline run of the command line and its sensor rate (None with
+/// `--timer-only`). An explicit `--rate` becomes `plant.sensor_rate_hz`.
+pub fn pipeline_config(
+    a: &JitterArgs,
+) -> Result<Option<(PipelineJitterConfig, f64)>, LatencyError> {
+    if a.timer_only {
+        return Ok(None);
+    }
+    let mut sets = a.sets.clone();
+    if let Some(r) = a.rate {
+        sets.push(format!("plant.sensor_rate_hz={r}"));
+    }
+    let pcfg = crate::pipeline::config::load(&a.config, &sets)
+        .map_err(|e| LatencyError::BadArg(e.to_string()))?;
+    let exe = std::env::current_exe()
+        .map_err(|e| LatencyError::Spawn(format!("cannot find this executable: {e}")))?;
+    Ok(Some((
+        PipelineJitterConfig {
+            exe,
+            config: a.config.clone(),
+            sets,
+            duration: duration(a.duration)?,
+        },
+        pcfg.plant.sensor_rate_hz,
+    )))
+}
+
+fn merged<'a>(hs: impl Iterator<Item = &'a LatencyHist>) -> LatencyHist {
+    let mut m = LatencyHist::new();
+    for h in hs {
+        m.merge(h);
+    }
+    m
+}
+
 /// `beliefbus jitter ...`.
 pub fn jitter(a: JitterArgs) -> Result<()> {
-    let cfg = check(timer_config(&a))?;
+    let pipe = check(pipeline_config(&a))?;
+    let rate = a.rate.or(pipe.as_ref().map(|p| p.1)).unwrap_or(1000.0);
+    let cfg = check(timer_config(&a, rate))?;
     let stop = crate::ipc::install_stop_handler();
     let date = now_iso8601();
     eprintln!(
-        "timer baseline on cores {:?} at {} Hz for {:.1} s{}",
+        "timer baseline on cores {:?} at {} Hz for {:.1} s{}{}",
         cfg.cores,
         cfg.rate_hz,
         cfg.duration.as_secs_f64(),
@@ -286,17 +341,69 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
             format!(", stress {0} cpu + {0} mem threads", a.stress)
         } else {
             String::new()
+        },
+        match &pipe {
+            Some((p, _)) => format!(", then the pipeline {}", p.config.display()),
+            None => String::new(),
         }
     );
     let load0 = LoadSample::now();
     let stress = Stress::start(a.stress, a.stress);
     let cores = timer_baseline(&cfg, stop)?;
+    let measured = match &pipe {
+        Some((p, _)) if !stop.load(std::sync::atomic::Ordering::Relaxed) => {
+            eprintln!("pipeline: starting beliefbus run ...");
+            Some(check(pipeline::measure(p, stop))?)
+        }
+        _ => None,
+    };
     drop(stress);
     let load = load0.until(&LoadSample::now());
     let (baseline, per_core) = baseline_entries(&cfg, &cores);
     let mut warnings: Vec<String> = cores.iter().flat_map(|c| c.warnings.clone()).collect();
     if cfg.fifo.is_some() && cores.iter().any(|c| !c.fifo) {
         warnings.push("some timer threads ran SCHED_OTHER".into());
+    }
+    let mut paths = Vec::new();
+    let mut info = None;
+    let mut shm_left = 0;
+    if let Some(m) = &measured {
+        let budget = (m.e2e_budget_ns > 0).then(|| m.e2e_budget_ns as f64 / 1e3);
+        let mut control = JitterEntry::new(
+            "control",
+            None,
+            &m.control_period_jitter,
+            &m.sensor_to_control,
+            m.e2e_misses,
+            budget,
+        );
+        control.missed_periods = m.control_period_misses;
+        let mut sensor = JitterEntry::new(
+            "sensor",
+            None,
+            &m.sensor_period_jitter,
+            &m.sensor_to_ingest,
+            0,
+            None,
+        );
+        sensor.missed_periods = 0;
+        paths.push(control.with_ratios(&baseline));
+        paths.push(sensor.with_ratios(&baseline));
+        shm_left = m.shm_left;
+        if m.stopped {
+            warnings.push("stopped early: the pipeline figures cover the time measured".into());
+        }
+        info = Some(PipelineInfo {
+            config: pipe
+                .as_ref()
+                .map(|p| p.0.config.display().to_string())
+                .unwrap_or_default(),
+            sets: pipe.as_ref().map(|p| p.0.sets.clone()).unwrap_or_default(),
+            sensor_rate_hz: m.sensor_rate_hz,
+            controls: m.controls,
+            stages: m.stages.iter().cloned().collect(),
+            hops: m.report_hops.clone(),
+        });
     }
     let report = JitterReport {
         date,
@@ -306,9 +413,10 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
         stress_mem_threads: a.stress,
         baseline,
         cores: per_core,
-        paths: Vec::new(),
+        paths,
+        pipeline: info,
         load,
-        shm_left: 0,
+        shm_left,
         warnings,
     };
     print!("{}", report.render());
@@ -316,7 +424,9 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
         write_json(path, &report)?;
     }
     if let Some(path) = &a.plot {
-        let rows: Vec<Row> = cores
+        let wake_all = merged(cores.iter().map(|c| &c.wake));
+        let jit_all = merged(cores.iter().map(|c| &c.period_jitter));
+        let mut rows: Vec<Row> = cores
             .iter()
             .map(|c| Row {
                 title: format!(
@@ -337,6 +447,38 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
                 ],
             })
             .collect();
+        if let Some(m) = &measured {
+            rows.push(Row {
+                title: "period jitter: pipeline outputs vs timer".into(),
+                series: vec![
+                    Series {
+                        label: "control".into(),
+                        hist: &m.control_period_jitter,
+                    },
+                    Series {
+                        label: "sensor (plant)".into(),
+                        hist: &m.sensor_period_jitter,
+                    },
+                    Series {
+                        label: "timer".into(),
+                        hist: &jit_all,
+                    },
+                ],
+            });
+            rows.push(Row {
+                title: "latency: sensor->control vs timer wake-up".into(),
+                series: vec![
+                    Series {
+                        label: "sensor->control".into(),
+                        hist: &m.sensor_to_control,
+                    },
+                    Series {
+                        label: "timer wake-up".into(),
+                        hist: &wake_all,
+                    },
+                ],
+            });
+        }
         write_svg(path, &format!("beliefbus jitter, {}", report.date), &rows)?;
         eprintln!("wrote {}", path.display());
     }
@@ -351,7 +493,25 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
                 }
             }
         }
+        if let Some(m) = &measured {
+            let start = std::time::SystemTime::now();
+            for (name, h) in [
+                ("control.period-jitter", &m.control_period_jitter),
+                ("control.sensor-control", &m.sensor_to_control),
+                ("sensor.period-jitter", &m.sensor_period_jitter),
+            ] {
+                // One interval: the pipeline's whole measured window.
+                let mut log = HdrLog::new(start, &[format!("beliefbus jitter: pipeline {name}")])?;
+                log.add(h, Duration::ZERO, Duration::from_secs_f64(a.duration))?;
+                let f = dir.join(format!("{name}.hlog"));
+                log.save(&f)
+                    .with_context(|| format!("writing {}", f.display()))?;
+            }
+        }
         eprintln!("wrote HdrHistogram logs to {}", dir.display());
+    }
+    if shm_left > 0 {
+        anyhow::bail!("{shm_left} shared-memory files of the pipeline run could not be removed");
     }
     Ok(())
 }

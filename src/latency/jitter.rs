@@ -312,8 +312,14 @@ pub struct JitterEntry {
     pub period_jitter: PctBlock,
     /// Timer: wake-up latency. Pipeline: end-to-end latency.
     pub latency: PctBlock,
+    /// Timer: wake-ups after the next deadline. Pipeline: end-to-end
+    /// latency above `budget_us`.
     pub deadline_misses: u64,
-    /// The budget misses are counted against, µs (timer: the period).
+    /// Periods that passed without a wake-up (timer) or an output
+    /// (pipeline).
+    pub missed_periods: u64,
+    /// The budget misses are counted against, µs (timer: the period;
+    /// pipeline: the sum of the ingest, filter and control budgets).
     pub budget_us: Option<f64>,
     /// Period jitter / the timer baseline's, at p50 and p99 (null for the
     /// baseline itself).
@@ -340,6 +346,7 @@ impl JitterEntry {
             period_jitter: PctBlock::of(period_jitter),
             latency: PctBlock::of(latency),
             deadline_misses,
+            missed_periods: deadline_misses,
             budget_us,
             ratio_p50: None,
             ratio_p99: None,
@@ -380,10 +387,27 @@ pub struct JitterReport {
     pub cores: Vec<JitterEntry>,
     /// Pipeline paths, each with its ratios to `baseline`.
     pub paths: Vec<JitterEntry>,
+    /// The pipeline run (null with `--timer-only`).
+    pub pipeline: Option<PipelineInfo>,
     pub load: LoadReport,
     /// Shared-memory files of the run left after cleanup (should be 0).
     pub shm_left: usize,
     pub warnings: Vec<String>,
+}
+
+/// What the pipeline run was and what its own report said.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PipelineInfo {
+    pub config: String,
+    pub sets: Vec<String>,
+    pub sensor_rate_hz: f64,
+    /// Controls in the measured window.
+    pub controls: u64,
+    /// Per stage: processed, deadline misses against its compute budget,
+    /// compute percentiles (from the run report).
+    pub stages: std::collections::BTreeMap<String, super::pipeline::StageFigures>,
+    /// The run report's hops (its whole run after warm-up).
+    pub hops: serde_json::Value,
 }
 
 /// The baseline entries (merged, per core) of a timer run.
@@ -454,7 +478,25 @@ impl JitterReport {
         for p in &self.paths {
             s += &fmt_row(p);
         }
-        s += "(timer rows: jit = |period − T|, lat = wake-up latency; pipeline rows: lat = end-to-end; r = jitter ratio to the timer)\n";
+        s += "(timer rows: jit = |period − T|, lat = wake-up latency, misses = late by a period; pipeline rows: lat = end-to-end (sensor->ingest for sensor), misses = above the budget; r = jitter ratio to the timer)\n";
+        if let Some(p) = &self.pipeline {
+            s += &format!(
+                "pipeline {} at {} Hz: {} controls measured; stage compute vs budget (µs):\n",
+                p.config, p.sensor_rate_hz, p.controls
+            );
+            let o = |x: Option<f64>| x.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
+            for (name, f) in &p.stages {
+                s += &format!(
+                    "  {:<8} processed {:>8}  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {}\n",
+                    name,
+                    f.processed,
+                    o(f.compute_p50_us),
+                    o(f.compute_p99_us),
+                    o(f.budget_us),
+                    f.deadline_misses
+                );
+            }
+        }
         s += &self.load.line();
         s.push('\n');
         for w in &self.warnings {

@@ -31,6 +31,7 @@ pub mod hdr;
 pub mod jitter;
 pub mod load;
 pub mod paths;
+pub mod pipeline;
 pub mod plot;
 pub mod pong;
 pub mod report;
