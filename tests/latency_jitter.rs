@@ -151,6 +151,8 @@ fn the_pipeline_is_measured_against_the_timer_in_the_same_run() {
         assert!(s["processed"].as_u64().unwrap() > 0, "{stage}");
         assert!(s["deadline_misses"].is_u64(), "{stage}");
         assert!(s["budget_us"].as_f64().unwrap() > 0.0, "{stage}");
+        assert!(s["late"].is_u64(), "{stage}");
+        assert!(s["lateness_p99_us"].is_f64(), "{stage}");
     }
     assert!(pipe["hops"]["sensor->control"]["count"].as_u64().unwrap() > 0);
     std::fs::remove_dir_all(&dir).unwrap();

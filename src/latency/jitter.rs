@@ -487,13 +487,15 @@ impl JitterReport {
             let o = |x: Option<f64>| x.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
             for (name, f) in &p.stages {
                 s += &format!(
-                    "  {:<8} processed {:>8}  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {}\n",
+                    "  {:<8} processed {:>8}  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5}  late {:>5}  lateness p99 {:>8}\n",
                     name,
                     f.processed,
                     o(f.compute_p50_us),
                     o(f.compute_p99_us),
                     o(f.budget_us),
-                    f.deadline_misses
+                    f.deadline_misses,
+                    f.late,
+                    o(f.lateness_p99_us)
                 );
             }
         }

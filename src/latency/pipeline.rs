@@ -50,6 +50,10 @@ pub struct StageFigures {
     pub budget_us: Option<f64>,
     pub compute_p50_us: Option<f64>,
     pub compute_p99_us: Option<f64>,
+    /// Messages finished after release + budget, and the lateness p99
+    /// (response − budget; negative: early).
+    pub late: u64,
+    pub lateness_p99_us: Option<f64>,
 }
 
 /// What the monitor measured.
@@ -152,6 +156,8 @@ fn stage_figures(report: &serde_json::Value) -> Vec<(String, StageFigures)> {
                     budget_us: s["budget_us"].as_f64(),
                     compute_p50_us: s["compute_p50_us"].as_f64(),
                     compute_p99_us: s["compute_p99_us"].as_f64(),
+                    late: s["late"].as_u64().unwrap_or(0),
+                    lateness_p99_us: s["lateness_p99_us"].as_f64(),
                 },
             ))
         })

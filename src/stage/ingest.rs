@@ -289,7 +289,11 @@ pub fn run(
                         obs.publish(o)?;
                         out_seq += 1;
                         m.processed += 1;
-                        m.budget.record(o.trace.t_ingest_in_ns, now);
+                        m.budget.record_released(
+                            o.trace.t_sensor_pub_ns,
+                            o.trace.t_ingest_in_ns,
+                            now,
+                        );
                         m.record_hops(&o.trace);
                     }
                     if n < BATCH {
