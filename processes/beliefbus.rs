@@ -104,6 +104,12 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+    /// One-way latency of beliefbus's ports against bare iceoryx2, per message type.
+    Latency(beliefbus::latency::cli::LatencyArgs),
+    /// Timer wake-up jitter baseline per core (cyclictest-style).
+    Jitter(beliefbus::latency::cli::JitterArgs),
+    #[command(hide = true)]
+    LatencyPong(beliefbus::latency::cli::PongArgs),
 }
 
 fn main() {
@@ -183,6 +189,9 @@ fn run(cli: Cli) -> Result<()> {
         Command::Run { .. } | Command::Stage { .. } | Command::Plant { .. } => {
             unreachable!("handled in main")
         }
+        Command::Latency(a) => beliefbus::latency::cli::latency(a),
+        Command::Jitter(a) => beliefbus::latency::cli::jitter(a),
+        Command::LatencyPong(a) => beliefbus::latency::cli::pong(a),
         Command::Experiment {
             name,
             list,

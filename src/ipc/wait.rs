@@ -5,6 +5,7 @@
 //! two cores only the latency-critical stages should use it.
 
 use super::ports::{Message, Subscriber};
+use super::slice::{SliceElem, SliceSubscriber};
 use super::IpcError;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
@@ -59,6 +60,19 @@ impl<M: Message> sealed::Sealed for Subscriber<M> {
     }
 }
 impl<M: Message> Wakeable for Subscriber<M> {}
+
+impl<T: SliceElem> sealed::Sealed for SliceSubscriber<T> {
+    fn listener(&self) -> Option<&Listener<ipc::Service>> {
+        self.listener.as_ref()
+    }
+    fn has_data(&self) -> bool {
+        SliceSubscriber::has_data(self)
+    }
+    fn drain_wakeups(&self) {
+        SliceSubscriber::drain_wakeups(self)
+    }
+}
+impl<T: SliceElem> Wakeable for SliceSubscriber<T> {}
 
 /// Longest blocking wait between stop-flag checks (and connection refreshes).
 pub const STOP_POLL: Duration = Duration::from_millis(50);

@@ -193,7 +193,8 @@ pub fn run(
                     }
                     let Some(backend) = backend.as_mut() else {
                         m.processed += 1;
-                        m.budget.record(t_in, clock.now_ns());
+                        m.budget
+                            .record_released(b.header.t_pub_ns, t_in, clock.now_ns());
                         return Ok(());
                     };
                     let g = b.gaussian();
@@ -237,7 +238,7 @@ pub fn run(
                     control.publish(&out)?;
                     out_seq += 1;
                     m.processed += 1;
-                    m.budget.record(t_in, now);
+                    m.budget.record_released(b.header.t_pub_ns, t_in, now);
                     m.record_hops(&out.trace);
                     // Off the critical path: the next call's noise.
                     backend.prepare();

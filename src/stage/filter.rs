@@ -212,7 +212,7 @@ pub fn run(
                     belief.publish(&out)?;
                     out_seq += 1;
                     m.processed += 1;
-                    m.budget.record(t_in, now);
+                    m.budget.record_released(o.header.t_pub_ns, t_in, now);
                     m.record_hops(&out.trace);
                 }
             }
