@@ -230,6 +230,12 @@ impl<T: SliceElem> SliceSubscriber<T> {
         }
     }
 
+    /// Connect to publishers that appeared since the last receive.
+    pub fn refresh(&self) {
+        use iceoryx2::port::update_connections::UpdateConnections;
+        let _ = self.subscriber.update_connections();
+    }
+
     /// The service name.
     pub fn service(&self) -> &str {
         &self.service

@@ -71,6 +71,9 @@ impl<T: SliceElem> sealed::Sealed for SliceSubscriber<T> {
     fn drain_wakeups(&self) {
         SliceSubscriber::drain_wakeups(self)
     }
+    fn refresh(&self) {
+        SliceSubscriber::refresh(self)
+    }
 }
 impl<T: SliceElem> Wakeable for SliceSubscriber<T> {}
 
