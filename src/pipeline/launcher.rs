@@ -365,6 +365,7 @@ fn drive(
             }
         }
         if stop.load(Ordering::Relaxed) {
+            eprintln!("stopping (signal)");
             return Ok(());
         }
         if Instant::now() > deadline {
