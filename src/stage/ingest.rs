@@ -24,7 +24,7 @@
 //! filter and is rejected as `too_old`.
 
 use super::reorder::{RejectLog, ReorderBuffer};
-use super::{guarded, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort};
+use super::{guarded, stopped, Metrics, StageError, StageIdentity, StatsPort};
 use crate::ipc::{
     run_loop, Bus, Hop, Observation, Publisher, SensorSample, StageKind, StageStats, Subscriber,
     Wake, SENSOR_MAX_DIM,
@@ -109,7 +109,9 @@ impl IngestPorts {
 struct Channel {
     cfg: ChannelConfig,
     mask: u32,
-    seq: SeqTracker,
+    /// Highest trusted sequence number seen (accepted, or rejected after
+    /// the duplicate check): the numbers skipped below it were lost.
+    seen: Option<u64>,
     last_seq: Option<u64>,
     last_t: u64,
     tokens: f64,
@@ -123,6 +125,7 @@ pub struct Validator {
     channels: Vec<Channel>,
     obs_dim: usize,
     max_age_ns: u64,
+    lost: u64,
 }
 
 impl Validator {
@@ -135,7 +138,7 @@ impl Validator {
             .map(|c| Channel {
                 mask: c.components.iter().fold(0u32, |m, &k| m | (1 << k)),
                 cfg: c,
-                seq: SeqTracker::default(),
+                seen: None,
                 last_seq: None,
                 last_t: 0,
                 tokens: RATE_BURST,
@@ -146,12 +149,14 @@ impl Validator {
             channels,
             obs_dim: dims.obs,
             max_age_ns: (cfg.ingest.max_age_s * 1e9) as u64,
+            lost: 0,
         })
     }
 
     /// Check one sample received at `now_ns`; on success fill `obs` (y,
     /// mask, σ, channel, the sensor part of the trace) and return the
-    /// number of samples of this channel lost before it (sequence gap).
+    /// number of samples of this channel lost before it (sequence gap; see
+    /// [`Self::lost`], which also counts gaps revealed by rejected samples).
     pub fn check(
         &mut self,
         s: &SensorSample,
@@ -181,6 +186,18 @@ impl Validator {
         if ch.last_seq.is_some_and(|l| s.seq <= l) {
             return Err(Reason::Duplicate);
         }
+        // From here the sequence number is trusted: numbers skipped before
+        // it were lost in transport (`dropped`), whether or not this sample
+        // is accepted — a sample rejected for its time or rate was seen,
+        // not lost.
+        let gap = match ch.seen {
+            Some(l) if s.seq > l => s.seq - l - 1,
+            _ => 0,
+        };
+        if ch.seen.is_none_or(|l| s.seq > l) {
+            ch.seen = Some(s.seq);
+        }
+        self.lost += gap;
         if now_ns.saturating_sub(s.t_meas_ns) > self.max_age_ns {
             return Err(Reason::TooOld);
         }
@@ -202,7 +219,6 @@ impl Validator {
             return Err(Reason::Rate);
         }
         ch.tokens = tokens - 1.0;
-        let gap = ch.seq.observe(s.seq);
         ch.last_seq = Some(s.seq);
         ch.last_t = s.t_meas_ns;
 
@@ -230,6 +246,12 @@ impl Validator {
             s.t_meas_ns
         };
         Ok(gap)
+    }
+
+    /// Samples lost before ingest saw them (sequence numbers skipped on a
+    /// channel), in total.
+    pub fn lost(&self) -> u64 {
+        self.lost
     }
 
     /// The configured channel ids.
@@ -319,15 +341,15 @@ pub fn run(
                 while let Some(s) = sensor.receive()? {
                     let t_in = clock.now_ns();
                     match v.check(&s, t_in, &mut o) {
-                        Ok(gap) => {
+                        Ok(_) => {
                             o.trace.t_ingest_in_ns = t_in;
-                            match merge.push(&o, t_in) {
-                                Ok(()) => m.dropped += gap,
-                                Err(_late) => reject(&mut m, &mut log, Reason::TooOld, &s, t_in),
+                            if merge.push(&o, t_in).is_err() {
+                                reject(&mut m, &mut log, Reason::TooOld, &s, t_in);
                             }
                         }
                         Err(reason) => reject(&mut m, &mut log, reason, &s, t_in),
                     }
+                    m.dropped = v.lost();
                     while let Some(mut r) = merge.pop_ready(clock.now_ns()) {
                         forward(&mut r, &mut out_seq, obs, &mut m, clock.now_ns())?;
                     }

@@ -137,11 +137,13 @@ fn validator_rejects_each_reason_and_accepts_good_samples() {
         ok(&mut v2, &sample(0, 0, now - 600 * ms, &[5.0, 0.1]), &mut o),
         Err(Reason::TooOld)
     );
-    // A gap in sequence numbers is reported as lost samples.
+    // A gap in sequence numbers is reported as lost samples: seq 1 was seen
+    // (the too-old one passed the duplicate check), 2 and 3 were lost.
     assert_eq!(
         ok(&mut v, &sample(0, 4, now - 80 * ms, &[5.0, 0.1]), &mut o),
-        Ok(3)
+        Ok(2)
     );
+    assert_eq!(v.lost(), 2);
     // Rate: max 200 Hz with a burst of 3 — samples 0.1 ms apart exhaust it.
     let mut rejected = 0;
     for i in 0..10u64 {
@@ -187,11 +189,13 @@ fn a_rate_rejected_sample_never_breaks_the_time_checks() {
         v.check(&sample(0, 4, t0 + 3 * ms, &[5.0, 0.1]), now, &mut o),
         Err(Reason::Rate)
     );
-    // 35 ms later the bucket has refilled.
+    // 35 ms later the bucket has refilled; the rate-rejected samples were
+    // seen, not lost.
     assert_eq!(
         v.check(&sample(0, 5, t0 + 40 * ms, &[5.0, 0.1]), now, &mut o),
-        Ok(2)
+        Ok(0)
     );
+    assert_eq!(v.lost(), 0);
 }
 
 #[test]

@@ -11,7 +11,7 @@
 //! See `tools/rust-sensor/README.md` and `docs/sensor-abi.md`.
 
 use anyhow::{bail, Context, Result};
-use beliefbus::ipc::sensor_api::{monotonic_now_ns, SensorPublisher};
+use beliefbus::ipc::sensor_api::{monotonic_now_ns, ControlSubscriber, SensorPublisher};
 use beliefbus::ipc::{install_stop_handler, Bus, BusConfig, Publisher, SensorSample, Truth};
 use beliefbus::model::discrete::em_integrate;
 use beliefbus::model::ship::{Ship, ShipParams};
@@ -57,6 +57,10 @@ struct Args {
     /// Also publish the true state (`truth` channel).
     #[arg(long)]
     truth: bool,
+    /// Apply the pipeline's controls to the simulated ship (closed loop;
+    /// uses `ControlSubscriber`, the actuator API).
+    #[arg(long)]
+    apply_controls: bool,
     /// Seconds to wait for the pipeline's ingest to subscribe (0: don't).
     #[arg(long, default_value_t = 10.0)]
     wait_ingest: f64,
@@ -160,7 +164,7 @@ enum Target {
 impl Target {
     /// Move the target to time `t_ns` (the ship integrates; the circle is
     /// evaluated).
-    fn advance(&mut self, t_ns: u64) {
+    fn advance(&mut self, t_ns: u64, u: &[f64; 2]) {
         match self {
             Target::Ship {
                 ship,
@@ -170,7 +174,7 @@ impl Target {
                 dt,
             } => {
                 let span = t_ns.saturating_sub(*t) as f64 * 1e-9;
-                em_integrate(&**ship, &mut x[..], &[0.0, 0.0], span, *dt, rng);
+                em_integrate(&**ship, &mut x[..], u, span, *dt, rng);
                 *t = t_ns;
             }
             Target::Circle {
@@ -214,6 +218,9 @@ struct Stream<'a> {
     rng: SimRng,
     sigma: f64,
     good: u64,
+    /// The pipeline's controls, applied to the ship (`--apply-controls`).
+    actuator: Option<ControlSubscriber>,
+    u: [f64; 2],
 }
 
 impl Stream<'_> {
@@ -222,7 +229,14 @@ impl Stream<'_> {
         while monotonic_now_ns() < t_meas {
             sleep_until_ns(t_meas);
         }
-        self.target.advance(t_meas);
+        if let Some(act) = self.actuator.as_mut() {
+            if let Some(c) = act.try_latest()? {
+                if c.dim >= 2 {
+                    self.u = [c.u[0], c.u[1]];
+                }
+            }
+        }
+        self.target.advance(t_meas, &self.u);
         let x = *self.target.state();
         let mut y = [0.0; 2];
         self.model.obs_mean(&x, &mut y);
@@ -251,6 +265,7 @@ impl Stream<'_> {
             t.header.t_valid_ns = t_meas;
             t.header.t_pub_ns = monotonic_now_ns();
             t.x[..4].copy_from_slice(&x);
+            t.u[..2].copy_from_slice(&self.u);
             t.y[..2].copy_from_slice(&y);
             p.publish(&t)?;
         }
@@ -325,6 +340,15 @@ fn run(a: &Args) -> Result<serde_json::Value> {
         rng: beliefbus::rng::stream(a.seed, 0x0b5),
         sigma,
         good: 0,
+        actuator: if a.apply_controls {
+            Some(ControlSubscriber::connect_with(
+                &cfg,
+                "rust-sensor-actuator",
+            )?)
+        } else {
+            None
+        },
+        u: [0.0; 2],
     };
     let period_ns = (period * 1e9).round() as u64;
     let n = (a.duration * a.rate).round() as usize;
