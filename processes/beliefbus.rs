@@ -1,5 +1,9 @@
 //! `beliefbus`: the user-facing command. Subcommands: `run` (the launcher,
-//! issue 2) and `experiment` (paper reproductions).
+//! issue 2; `--sensor external` for external sensor publishers, issue 7),
+//! `plant` (the simulated plant as an external publisher, issue 7) and
+//! `experiment` (paper reproductions); the hidden `stage NAME` runs one
+//! stage in this process (the launcher's fallback when the stage
+//! executables next to it are missing or from another build).
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -14,6 +18,13 @@ use std::path::PathBuf;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+}
+
+/// `beliefbus run --sensor`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum SensorArg {
+    Plant,
+    External,
 }
 
 #[derive(Subcommand)]
@@ -35,6 +46,30 @@ enum Command {
         /// No status line every second.
         #[arg(long)]
         quiet: bool,
+        /// Where sensor samples come from: the built-in simulated `plant`, or
+        /// `external` publishers (no plant; the run uses `run.prefix`; see
+        /// docs/sensor-abi.md).
+        #[arg(long, value_enum, default_value_t = SensorArg::Plant)]
+        sensor: SensorArg,
+    },
+    /// Run the simulated plant alone, as an external sensor publisher of a
+    /// pipeline started with `run CONFIG --sensor external`.
+    Plant {
+        /// Pipeline config (the same as the run's).
+        #[arg(default_value = beliefbus::pipeline::stage_main::DEFAULT_CONFIG)]
+        config: PathBuf,
+        /// Seconds to publish (default: run.duration_s; 0 = until Ctrl-C).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Override one config key by dotted path (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
+        /// Shared-memory prefix (default: run.prefix of the config).
+        #[arg(long)]
+        prefix: Option<String>,
+        /// Seconds to wait for the pipeline's ingest before giving up.
+        #[arg(long, default_value_t = 60.0)]
+        wait: f64,
     },
     /// Run one stage in this process (what the launcher falls back to when
     /// the stage executables are missing or stale).
@@ -97,16 +132,39 @@ fn main() {
         report,
         sets,
         quiet,
+        sensor,
     } = &cli.command
     {
+        use beliefbus::pipeline::launcher::SensorSource;
         let opts = beliefbus::pipeline::launcher::RunOptions {
             config: config.clone(),
+            sensor: match sensor {
+                SensorArg::Plant => SensorSource::Plant,
+                SensorArg::External => SensorSource::External,
+            },
             duration_s: *duration,
             report: report.clone(),
             sets: sets.clone(),
             quiet: *quiet,
         };
         std::process::exit(beliefbus::pipeline::launcher::main(&opts));
+    }
+    if let Command::Plant {
+        config,
+        duration,
+        sets,
+        prefix,
+        wait,
+    } = &cli.command
+    {
+        let opts = beliefbus::pipeline::external::PlantOptions {
+            config: config.clone(),
+            duration_s: *duration,
+            sets: sets.clone(),
+            prefix: prefix.clone(),
+            wait_ingest_s: *wait,
+        };
+        std::process::exit(beliefbus::pipeline::external::main(&opts));
     }
     if let Command::Stage { name, args } = &cli.command {
         let Some(kind) = beliefbus::ipc::StageKind::from_name(name) else {
@@ -128,7 +186,9 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Run { .. } | Command::Stage { .. } => unreachable!("handled in main"),
+        Command::Run { .. } | Command::Stage { .. } | Command::Plant { .. } => {
+            unreachable!("handled in main")
+        }
         Command::Latency(a) => beliefbus::latency::cli::latency(a),
         Command::Jitter(a) => beliefbus::latency::cli::jitter(a),
         Command::LatencyPong(a) => beliefbus::latency::cli::pong(a),

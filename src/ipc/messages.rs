@@ -180,22 +180,27 @@ impl Default for SensorSample {
 
 impl SensorSample {
     /// A sample of `values` on `channel` measured at `t_meas_ns`.
-    /// `values` longer than [`SENSOR_MAX_DIM`] are truncated (and `dim`
-    /// records the truncated length).
+    ///
+    /// `dim` is always `values.len()`: values beyond [`SENSOR_MAX_DIM`] do
+    /// not fit and are not copied, but `dim` still says how many there were,
+    /// so ingest rejects the sample as a wrong dimension instead of filtering
+    /// a silently truncated one. Use [`crate::ipc::sensor_api::SensorPublisher`]
+    /// for a typed error before sending.
     pub fn new(channel: u32, seq: u64, t_meas_ns: u64, values: &[f64]) -> Self {
         let n = values.len().min(SENSOR_MAX_DIM);
         let mut s = Self {
             seq,
             t_meas_ns,
             channel,
-            dim: n as u32,
+            dim: u32::try_from(values.len()).unwrap_or(u32::MAX),
             ..Self::default()
         };
         s.values[..n].copy_from_slice(&values[..n]);
         s
     }
 
-    /// Attach per-sample σ (same length as the values).
+    /// Attach per-sample σ, one per value (entries beyond [`SENSOR_MAX_DIM`]
+    /// are not copied; a σ left at 0 makes ingest reject the sample).
     pub fn with_noise_std(mut self, std: &[f64]) -> Self {
         let n = std.len().min(SENSOR_MAX_DIM);
         self.noise_std[..n].copy_from_slice(&std[..n]);

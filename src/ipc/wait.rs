@@ -38,6 +38,7 @@ mod sealed {
         ) -> Option<&iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service>>;
         fn has_data(&self) -> bool;
         fn drain_wakeups(&self);
+        fn refresh(&self);
     }
 }
 
@@ -53,6 +54,9 @@ impl<M: Message> sealed::Sealed for Subscriber<M> {
     }
     fn drain_wakeups(&self) {
         Subscriber::drain_wakeups(self)
+    }
+    fn refresh(&self) {
+        Subscriber::refresh(self)
     }
 }
 impl<M: Message> Wakeable for Subscriber<M> {}
@@ -70,8 +74,8 @@ impl<T: SliceElem> sealed::Sealed for SliceSubscriber<T> {
 }
 impl<T: SliceElem> Wakeable for SliceSubscriber<T> {}
 
-/// Longest blocking wait between stop-flag checks.
-const STOP_POLL: Duration = Duration::from_millis(50);
+/// Longest blocking wait between stop-flag checks (and connection refreshes).
+pub const STOP_POLL: Duration = Duration::from_millis(50);
 
 /// Run `body` until it breaks or `stop` is set: `body(Wake::Data)` whenever
 /// an input was notified or (spin mode) has data, `body(Wake::Tick)` every
@@ -143,6 +147,12 @@ where
                 // A timeout with data waiting (e.g. a notification consumed
                 // with an earlier batch) still runs the body.
                 data = woke || any_data();
+                if !woke {
+                    // Idle: connect to publishers that appeared meanwhile.
+                    for i in inputs {
+                        sealed::Sealed::refresh(*i);
+                    }
+                }
             }
         }
         if data {

@@ -19,6 +19,7 @@ use crate::control::mppi::MppiConfig;
 use crate::control::waypoints::RouteConfig;
 use crate::filter::ekf::EkfConfig;
 use crate::filter::pf::PfConfig;
+use crate::filter::ukf::UkfConfig;
 use crate::ipc::{StageKind, WakeMode};
 use crate::model::ship::ShipParams;
 use crate::model::vanderpol::VanDerPolParams;
@@ -161,6 +162,14 @@ pub struct IngestConfig {
     /// Channel map; empty: channel `plant.channel` carries every component.
     #[serde(default)]
     pub channels: Vec<ChannelConfig>,
+    /// Longest time an observation is held to merge several channels in
+    /// measurement-time order (ms); irrelevant with one channel.
+    #[serde(default = "default_reorder_window")]
+    pub reorder_window_ms: f64,
+}
+
+fn default_reorder_window() -> f64 {
+    20.0
 }
 
 fn default_max_age() -> f64 {
@@ -172,6 +181,7 @@ impl Default for IngestConfig {
         Self {
             max_age_s: default_max_age(),
             channels: Vec::new(),
+            reorder_window_ms: default_reorder_window(),
         }
     }
 }
@@ -182,6 +192,7 @@ impl Default for IngestConfig {
 pub enum FilterBackend {
     Pf,
     Ekf,
+    Ukf,
 }
 
 impl FilterBackend {
@@ -189,6 +200,7 @@ impl FilterBackend {
         match self {
             FilterBackend::Pf => "pf",
             FilterBackend::Ekf => "ekf",
+            FilterBackend::Ukf => "ukf",
         }
     }
 }
@@ -206,6 +218,8 @@ pub struct FilterConfig {
     pub pf: PfConfig,
     #[serde(default)]
     pub ekf: EkfConfig,
+    #[serde(default)]
+    pub ukf: UkfConfig,
 }
 
 /// Controller backends.
@@ -252,6 +266,12 @@ pub struct ControlConfig {
     pub cost: Option<CostConfig>,
     #[serde(default)]
     pub mppi: MppiConfig,
+    /// Freshest-data policy: a belief older than this (µs since it was
+    /// published) when the controller gets to it is skipped and counted as
+    /// dropped, so a controller slower than the sensor computes on fresh
+    /// beliefs only (0: compute on every latest belief).
+    #[serde(default)]
+    pub max_belief_age_us: f64,
 }
 
 /// `[refine]`: the anytime chain refinement (issue 4 fills it in).
@@ -617,6 +637,13 @@ impl PipelineConfig {
         finite_all("plant.initial_state", &p.initial_state)?;
 
         positive("ingest.max_age_s", self.ingest.max_age_s)?;
+        let w = self.ingest.reorder_window_ms;
+        if !(w.is_finite() && w >= 0.0 && w <= self.ingest.max_age_s * 1e3) {
+            return Err(ConfigError::new(
+                "ingest.reorder_window_ms",
+                format!("must be >= 0 and at most ingest.max_age_s, got {w}"),
+            ));
+        }
         let channels = self.channels(dims.obs);
         for (i, c) in channels.iter().enumerate() {
             let key = format!("ingest.channels[{i}]");
@@ -671,6 +698,9 @@ impl PipelineConfig {
         f.ekf
             .validate()
             .map_err(|e| ConfigError::new(format!("filter.ekf.{}", e.key), e.problem))?;
+        f.ukf
+            .validate(dims.state)
+            .map_err(|e| ConfigError::new(format!("filter.ukf.{}", e.key), e.problem))?;
 
         self.validate_control(&model)?;
 
@@ -698,6 +728,12 @@ impl PipelineConfig {
 
     fn validate_control(&self, model: &AnyModel) -> Result<(), ConfigError> {
         let c = &self.control;
+        if !(c.max_belief_age_us.is_finite() && c.max_belief_age_us >= 0.0) {
+            return Err(ConfigError::new(
+                "control.max_belief_age_us",
+                "must be >= 0",
+            ));
+        }
         if c.backend == ControlBackend::None {
             return Ok(());
         }

@@ -5,12 +5,16 @@
 //! 1. Load and validate the whole config (a bad one: exit 2, one line).
 //! 2. Remove what crashed earlier runs left ([`cleanup::sweep_stale_runs`]),
 //!    make a fresh prefix and open the monitor on it.
+//!    With `--sensor external` the run uses the config's `run.prefix`
+//!    instead (external publishers must know it; `docs/sensor-abi.md`),
+//!    after removing what dead participants left on it, and prints it.
 //! 3. Spawn `beliefbus-<stage>` found next to this executable (if it was
 //!    built from the same sources; otherwise this executable's hidden
 //!    `stage <name>` subcommand runs the same code), downstream first:
 //!    control, refine, filter, ingest — each in its own process group, with
 //!    SIGTERM as its parent-death signal — and the plant once the others
-//!    have reported. Each stage pins and prioritises itself from
+//!    have reported (not with `--sensor external`: then external
+//!    publishers, e.g. `beliefbus plant`, feed the pipeline). Each stage pins and prioritises itself from
 //!    `[stages.<name>]`.
 //! 4. Print a status line every second; stop on the duration, on Ctrl-C
 //!    (SIGINT/SIGTERM) or when a stage dies.
@@ -32,10 +36,23 @@ use std::process::{Child, Command, ExitStatus};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+/// Where the sensor samples of a run come from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SensorSource {
+    /// The built-in simulated plant (a stage process of the run).
+    #[default]
+    Plant,
+    /// External publishers (`docs/sensor-abi.md`): no plant is started; the
+    /// run uses the config's `run.prefix` so publishers know it in advance.
+    External,
+}
+
 /// Options of `beliefbus run`.
 #[derive(Clone, Debug, Default)]
 pub struct RunOptions {
     pub config: PathBuf,
+    /// `--sensor plant|external`.
+    pub sensor: SensorSource,
     /// Overrides `run.duration_s`.
     pub duration_s: Option<f64>,
     pub report: Option<PathBuf>,
@@ -115,11 +132,11 @@ fn spawn(
 ) -> Result<Stage> {
     let (mut cmd, own) = stage_command(kind)?;
     if !own {
-        notes.push(format!(
-            "beliefbus-{} next to this executable is missing or from another build; running it as `beliefbus stage {}`",
-            kind.name(),
-            kind.name()
-        ));
+        let n = "stage executables next to beliefbus are missing or from another build \
+                 (`cargo run` builds only beliefbus); ran the stages as `beliefbus stage <name>`";
+        if !notes.iter().any(|x| x == n) {
+            notes.push(n.to_string());
+        }
     }
     cmd.arg(&opts.config).arg("--prefix").arg(prefix);
     for s in &opts.sets {
@@ -189,8 +206,26 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
             swept.len()
         );
     }
-    let prefix = cleanup::run_prefix();
+    let prefix = match opts.sensor {
+        SensorSource::Plant => cleanup::run_prefix(),
+        SensorSource::External => {
+            // A known prefix; what dead participants left on it goes first
+            // (live external publishers are left alone).
+            let _ = cleanup::remove_prefix(&cfg.run.prefix);
+            cfg.run.prefix.clone()
+        }
+    };
     cfg.run.prefix = prefix.clone();
+    eprintln!(
+        "bus: prefix={prefix} instance={} sensor={}{}",
+        cfg.run.instance,
+        ipc::service_name(&cfg.run.instance, "sensor"),
+        if opts.sensor == SensorSource::External {
+            " (external publishers; see docs/sensor-abi.md)"
+        } else {
+            ""
+        }
+    );
     if !opts.quiet {
         eprintln!(
             "beliefbus: {} ({} Hz, filter {}, control {}) under shared-memory prefix {prefix}",
@@ -226,6 +261,7 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
     let failed: Vec<String> = input
         .stages
         .iter()
+        .filter(|(k, _)| !(opts.sensor == SensorSource::External && *k == StageKind::Plant))
         .filter(|(_, e)| e.exit.as_deref() != Some("exit 0"))
         .map(|(k, e)| {
             format!(
@@ -270,6 +306,11 @@ fn supervise(
         sensor_rate_hz: cfg.plant.sensor_rate_hz,
         filter_backend: cfg.filter.backend.name().into(),
         controller: cfg.control.backend.name().into(),
+        sensor_source: match opts.sensor {
+            SensorSource::Plant => "plant",
+            SensorSource::External => "external",
+        }
+        .into(),
         prefix: prefix.to_string(),
         stages: StageKind::ALL
             .iter()
@@ -278,7 +319,8 @@ fn supervise(
                 (
                     k,
                     StageEnd {
-                        pid: s.map(|s| s.pid),
+                        // An external plant (`beliefbus plant`) reports its pid.
+                        pid: s.map(|s| s.pid).or(mon.stats(k).map(|st| st.pid)),
                         stats: mon.stats(k).copied(),
                         exit: s.and_then(|s| s.exit.as_ref()).map(describe),
                     },
@@ -330,7 +372,18 @@ fn drive(
         }
         std::thread::sleep(Duration::from_millis(2));
     }
-    stages.push(spawn(StageKind::Plant, opts, prefix, notes)?);
+    // Let every waiting stage connect to the publishers that appeared after
+    // it (they refresh their connections when idle), so no first sample is
+    // lost.
+    std::thread::sleep(3 * ipc::STOP_POLL);
+    if opts.sensor == SensorSource::Plant {
+        stages.push(spawn(StageKind::Plant, opts, prefix, notes)?);
+    } else {
+        eprintln!(
+            "pipeline up; waiting for sensor samples on {} (prefix {prefix})",
+            ipc::service_name(&cfg.run.instance, "sensor")
+        );
+    }
     let t0 = Instant::now();
     let duration = (cfg.run.duration_s > 0.0).then(|| Duration::from_secs_f64(cfg.run.duration_s));
     let mut next_status = t0 + Duration::from_secs(1);
@@ -363,10 +416,18 @@ fn drive(
 /// One line: elapsed time, messages per stage, end-to-end latency, error.
 fn status_line(elapsed: Duration, mon: &Monitor, cfg: &PipelineConfig) -> String {
     let n = |k| mon.stats(k).map(|s| s.processed).unwrap_or(0);
+    // External sensors: what reached ingest (accepted + rejected).
+    let sensor = mon
+        .stats(StageKind::Plant)
+        .map(|s| s.processed)
+        .or(mon
+            .stats(StageKind::Ingest)
+            .map(|s| s.processed + s.rejected))
+        .unwrap_or(0);
     let mut line = format!(
         "[{:>4.0}s] sensor {} ingest {} filter {} control {} refine {}",
         elapsed.as_secs_f64(),
-        n(StageKind::Plant),
+        sensor,
         n(StageKind::Ingest),
         n(StageKind::Filter),
         n(StageKind::Control),

@@ -4,6 +4,7 @@
 //! statistics and the truth, and the report.
 
 pub mod config;
+pub mod external;
 pub mod launcher;
 pub mod monitor;
 pub mod report;

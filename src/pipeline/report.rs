@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! { scenario, duration_s, sensor_rate_hz, filter_backend, controller,
-//!   prefix, sensor_samples, sensor_samples_after_warmup,
+//!   sensor_source, prefix, sensor_samples, sensor_samples_after_warmup,
 //!   hops:   { "sensor->ingest" | "ingest->filter" | "filter->control" |
 //!             "sensor->belief" | "sensor->control":
 //!             {count, p50_us, p90_us, p99_us, p999_us, max_us} },
@@ -70,6 +70,8 @@ pub struct ReportInput {
     pub sensor_rate_hz: f64,
     pub filter_backend: String,
     pub controller: String,
+    /// `plant` (built-in) or `external` (`beliefbus run --sensor external`).
+    pub sensor_source: String,
     pub prefix: String,
     pub stages: Vec<(StageKind, StageEnd)>,
     pub accuracy: Accuracy,
@@ -172,8 +174,13 @@ impl ReportInput {
             "sensor_rate_hz": self.sensor_rate_hz,
             "filter_backend": self.filter_backend,
             "controller": self.controller,
+            "sensor_source": self.sensor_source,
             "prefix": self.prefix,
-            "sensor_samples": plant.map(|p| p.processed).unwrap_or(0),
+            // External sensors without a plant: what reached ingest.
+            "sensor_samples": plant.map(|p| p.processed).or(self
+                .stats(StageKind::Ingest)
+                .map(|i| i.processed + i.rejected + i.dropped))
+                .unwrap_or(0),
             "sensor_samples_after_warmup": plant.map(|p| p.processed_after_warmup).unwrap_or(0),
             "hops": hops,
             "stages": stages,
@@ -316,6 +323,7 @@ mod tests {
             sensor_rate_hz: 100.0,
             filter_backend: "pf".into(),
             controller: "mppi".into(),
+            sensor_source: "plant".into(),
             prefix: "p".into(),
             stages: StageKind::ALL
                 .iter()

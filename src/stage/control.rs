@@ -6,6 +6,11 @@
 //! call (MPPI draws its noise there), keeping that work off the
 //! sensor→control path.
 //!
+//! With `control.max_belief_age_us` > 0 a belief that waited longer than
+//! that (the controller was still busy with an earlier one) is skipped and
+//! counted as dropped: a controller slower than the sensor then runs on
+//! fresh beliefs only, trading control rate for latency.
+//!
 //! A controller failure publishes the last good control (zero before the
 //! first) flagged `FALLBACK` and counts the reason. With backend `none`
 //! (estimation-only scenarios) the stage consumes beliefs and publishes
@@ -165,6 +170,7 @@ pub fn run(
     };
     let mut out_seq = 0u64;
     let mut err = None;
+    let max_age_ns = (cfg.control.max_belief_age_us * 1e3) as u64;
     if let Some(b) = backend.as_mut() {
         b.prepare();
     }
@@ -181,6 +187,10 @@ pub fn run(
                 if let Some(b) = latest {
                     let t_in = clock.now_ns();
                     m.dropped += skipped + seq.observe(b.header.seq);
+                    if max_age_ns > 0 && t_in.saturating_sub(b.header.t_pub_ns) > max_age_ns {
+                        m.dropped += 1; // stale: wait for a fresh one
+                        return Ok(());
+                    }
                     let Some(backend) = backend.as_mut() else {
                         m.processed += 1;
                         m.budget

@@ -1,19 +1,29 @@
 //! Ingest: validates every sensor sample and forwards a time-ordered stream
-//! of observations to the filter. A bad sample is counted by reason and
-//! dropped; it can never crash or stall the pipeline (DESIGN.md).
+//! of observations to the filter. A bad sample is counted by reason, logged
+//! at a bounded rate and dropped; it can never crash or stall the pipeline
+//! (DESIGN.md). The sample ABI and the rules for publishers are in
+//! `docs/sensor-abi.md`.
 //!
-//! Checks, in order: known channel; `dim` equals the channel's number of
-//! components; values finite; per-sample σ (if flagged) finite and > 0 and a
-//! measurement time that is set and not in the future; sequence number
-//! above the channel's last (else `duplicate`); measurement time not before
-//! the channel's last (`time_backwards`); age below `ingest.max_age_s`
-//! (`too_old`); rate within the channel's `max_rate_hz` (token bucket of 3
-//! samples by measurement time, `rate`). Samples drained together are
-//! sorted by measurement time, and one older than the last forwarded
-//! observation is rejected as `time_backwards` (the filter cannot go back).
-//! A bounded reorder window across channels arrives with multi-sensor
-//! ingest (issue 7).
+//! Checks, in order (the first failing one names the reason): known channel
+//! (`unknown_channel`); `dim` equals the channel's number of components
+//! (`dimension`); values finite (`non_finite`); per-sample σ (if flagged)
+//! finite and > 0 and a measurement time that is set and at most
+//! `ingest.max_age_s` in the future (`invalid`); sequence number above the
+//! channel's last accepted one (`duplicate`); age at arrival at most
+//! `ingest.max_age_s` (`too_old`); measurement time not before the channel's
+//! last accepted one (`time_backwards`); rate within the channel's
+//! `max_rate_hz` (token bucket of [`RATE_BURST`] samples refilled at
+//! `max_rate_hz` on measurement time, `rate`). A rejected sample leaves the
+//! channel's state untouched, so the good samples after it are accepted.
+//!
+//! Several channels (several sensors, each filling its components of the
+//! observation vector — the observation's [`crate::model::ObsMask`]) are
+//! merged by measurement time through a bounded reorder window
+//! ([`super::reorder::ReorderBuffer`], `ingest.reorder_window_ms`); a sample
+//! measured before the last forwarded observation arrives too late for the
+//! filter and is rejected as `too_old`.
 
+use super::reorder::{RejectLog, ReorderBuffer};
 use super::{guarded, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort};
 use crate::ipc::{
     run_loop, Bus, Hop, Observation, Publisher, SensorSample, StageKind, StageStats, Subscriber,
@@ -71,9 +81,11 @@ impl Reason {
 }
 
 /// Burst the rate limiter tolerates (samples).
-const RATE_BURST: f64 = 3.0;
-/// Largest batch sorted at once (the sensor subscriber's buffer).
-const BATCH: usize = 64;
+pub const RATE_BURST: f64 = 3.0;
+/// Observations the reorder window holds at most.
+const REORDER_CAPACITY: usize = 256;
+/// At most one log line per rejection reason per second.
+const REJECT_LOG_PERIOD_NS: u64 = 1_000_000_000;
 
 /// The ports of the ingest stage.
 pub struct IngestPorts {
@@ -111,7 +123,6 @@ pub struct Validator {
     channels: Vec<Channel>,
     obs_dim: usize,
     max_age_ns: u64,
-    last_forwarded_t: u64,
 }
 
 impl Validator {
@@ -135,7 +146,6 @@ impl Validator {
             channels,
             obs_dim: dims.obs,
             max_age_ns: (cfg.ingest.max_age_s * 1e9) as u64,
-            last_forwarded_t: 0,
         })
     }
 
@@ -171,20 +181,22 @@ impl Validator {
         if ch.last_seq.is_some_and(|l| s.seq <= l) {
             return Err(Reason::Duplicate);
         }
-        if s.t_meas_ns < ch.last_t {
-            return Err(Reason::TimeBackwards);
-        }
         if now_ns.saturating_sub(s.t_meas_ns) > self.max_age_ns {
             return Err(Reason::TooOld);
         }
-        // Token bucket on measurement time.
+        if s.t_meas_ns < ch.last_t {
+            return Err(Reason::TimeBackwards);
+        }
+        // Token bucket on measurement time. A rate-rejected sample moves
+        // `tokens_t` but not `last_t`, so a later accepted one may be
+        // measured before `tokens_t`: no refill then (never an underflow).
         let refill = if ch.tokens_t == 0 {
             RATE_BURST
         } else {
-            (s.t_meas_ns - ch.tokens_t) as f64 * 1e-9 * ch.cfg.max_rate_hz
+            s.t_meas_ns.saturating_sub(ch.tokens_t) as f64 * 1e-9 * ch.cfg.max_rate_hz
         };
         let tokens = (ch.tokens + refill).min(RATE_BURST);
-        ch.tokens_t = s.t_meas_ns;
+        ch.tokens_t = ch.tokens_t.max(s.t_meas_ns);
         if tokens < 1.0 {
             ch.tokens = tokens;
             return Err(Reason::Rate);
@@ -220,14 +232,47 @@ impl Validator {
         Ok(gap)
     }
 
-    /// Whether an observation measured at `t` may be forwarded after those
-    /// already forwarded; if so it becomes the newest.
-    pub fn admit_in_order(&mut self, t: u64) -> bool {
-        if t < self.last_forwarded_t {
-            return false;
-        }
-        self.last_forwarded_t = t;
-        true
+    /// The configured channel ids.
+    pub fn channel_ids(&self) -> Vec<u32> {
+        self.channels.iter().map(|c| c.cfg.id).collect()
+    }
+}
+
+/// Forward one released observation.
+fn forward(
+    o: &mut Observation,
+    out_seq: &mut u64,
+    obs: &mut Publisher<Observation>,
+    m: &mut Metrics,
+    now: u64,
+) -> Result<(), StageError> {
+    o.header.seq = *out_seq;
+    o.header.t_pub_ns = now;
+    o.trace.t_ingest_out_ns = now;
+    obs.publish(o)?;
+    *out_seq += 1;
+    m.processed += 1;
+    m.record_hops(&o.trace);
+    Ok(())
+}
+
+/// Count a rejection and log it if a line is due for its reason.
+fn reject(m: &mut Metrics, log: &mut RejectLog, reason: Reason, s: &SensorSample, now: u64) {
+    m.reject(reason as usize);
+    if let Some(more) = log.note(reason as usize, now) {
+        let also = if more > 0 {
+            format!(" (+{more} more since the last line)")
+        } else {
+            String::new()
+        };
+        eprintln!(
+            "beliefbus-ingest: rejected sample ({}) channel {} seq {} dim {} t_meas {} ns{also}",
+            reason.name(),
+            s.channel,
+            s.seq,
+            s.dim,
+            s.t_meas_ns
+        );
     }
 }
 
@@ -245,11 +290,25 @@ pub fn run(
         (cfg.run.warmup_s * 1e9) as u64,
     );
     let mut v = Validator::new(cfg)?;
-    let mut batch = [Observation::default(); BATCH];
+    let channels = v.channel_ids();
+    let window_ns = (cfg.ingest.reorder_window_ms * 1e6) as u64;
+    let mut merge = ReorderBuffer::new(
+        &channels,
+        REORDER_CAPACITY,
+        window_ns,
+        (cfg.ingest.max_age_s * 1e9) as u64,
+    );
+    let mut log = RejectLog::new(Reason::ALL.len(), REJECT_LOG_PERIOD_NS);
+    let mut o = Observation::default();
     let mut out_seq = 0u64;
     let mut err: Option<StageError> = None;
     ports.stats.publish(&m, clock.now_ns(), false)?;
-    let tick = Duration::from_secs_f64(cfg.run.stats_period_s.min(0.1));
+    // Several channels: wake often enough to release held observations
+    // when their window expires.
+    let mut tick = Duration::from_secs_f64(cfg.run.stats_period_s.min(0.1));
+    if channels.len() > 1 {
+        tick = tick.min(Duration::from_nanos(window_ns / 2).max(Duration::from_millis(1)));
+    }
 
     let sensor = &ports.sensor;
     let obs = &mut ports.obs;
@@ -257,54 +316,35 @@ pub fn run(
     run_loop(&[sensor], rt.wake_mode(), tick, stop, |w| {
         guarded(&mut err, || {
             if w == Wake::Data {
-                loop {
+                while let Some(s) = sensor.receive()? {
                     let t_in = clock.now_ns();
-                    let mut n = 0;
-                    while n < BATCH {
-                        let Some(s) = sensor.receive()? else { break };
-                        let o = &mut batch[n];
-                        match v.check(&s, t_in, o) {
-                            Ok(gap) => {
-                                m.dropped += gap;
-                                o.trace.t_ingest_in_ns = t_in;
-                                n += 1;
+                    match v.check(&s, t_in, &mut o) {
+                        Ok(gap) => {
+                            o.trace.t_ingest_in_ns = t_in;
+                            match merge.push(&o, t_in) {
+                                Ok(()) => m.dropped += gap,
+                                Err(_late) => reject(&mut m, &mut log, Reason::TooOld, &s, t_in),
                             }
-                            Err(reason) => m.reject(reason as usize),
                         }
+                        Err(reason) => reject(&mut m, &mut log, reason, &s, t_in),
                     }
-                    if n == 0 {
-                        break;
+                    while let Some(mut r) = merge.pop_ready(clock.now_ns()) {
+                        forward(&mut r, &mut out_seq, obs, &mut m, clock.now_ns())?;
                     }
-                    let b = &mut batch[..n];
-                    b.sort_by_key(|o| o.header.t_valid_ns);
-                    for o in b.iter_mut() {
-                        if !v.admit_in_order(o.header.t_valid_ns) {
-                            m.reject(Reason::TimeBackwards as usize);
-                            continue;
-                        }
-                        let now = clock.now_ns();
-                        o.header.seq = out_seq;
-                        o.header.t_pub_ns = now;
-                        o.trace.t_ingest_out_ns = now;
-                        obs.publish(o)?;
-                        out_seq += 1;
-                        m.processed += 1;
-                        m.budget.record_released(
-                            o.trace.t_sensor_pub_ns,
-                            o.trace.t_ingest_in_ns,
-                            now,
-                        );
-                        m.record_hops(&o.trace);
-                    }
-                    if n < BATCH {
-                        break;
-                    }
+                    m.budget.record(t_in, clock.now_ns());
                 }
+            }
+            while let Some(mut r) = merge.pop_ready(clock.now_ns()) {
+                forward(&mut r, &mut out_seq, obs, &mut m, clock.now_ns())?;
             }
             stats.tick(&m, clock.now_ns())?;
             Ok(())
         })
     })?;
+    // Whatever is still held goes out before the final report.
+    while let Some(mut r) = merge.pop_ready(u64::MAX) {
+        let _ = forward(&mut r, &mut out_seq, &mut ports.obs, &mut m, clock.now_ns());
+    }
     let last = ports.stats.publish(&m, clock.now_ns(), true)?;
     match err {
         Some(e) if !stopped(stop) => Err(e),

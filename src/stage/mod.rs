@@ -16,6 +16,7 @@ pub mod filter;
 pub mod ingest;
 pub mod plant;
 pub mod refine;
+pub mod reorder;
 
 use crate::ipc::BusConfig;
 use crate::ipc::{

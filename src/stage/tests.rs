@@ -123,10 +123,9 @@ fn validator_rejects_each_reason_and_accepts_good_samples() {
             sample(0, 1, now - 110 * ms, &[5.0, 0.1]),
             Reason::TimeBackwards,
         ),
-        (
-            sample(0, 1, now - 900 * ms, &[5.0, 0.1]),
-            Reason::TimeBackwards,
-        ),
+        // Both older than the last accepted and older than max_age: age is
+        // checked first.
+        (sample(0, 1, now - 900 * ms, &[5.0, 0.1]), Reason::TooOld),
     ];
     for (s, want) in cases {
         assert_eq!(ok(&mut v, &s, &mut o), Err(want), "{s:?}");
@@ -155,6 +154,115 @@ fn validator_rejects_each_reason_and_accepts_good_samples() {
         rejected >= 6,
         "rate limiter let too many through: {rejected} rejected"
     );
+}
+
+#[test]
+fn a_rate_rejected_sample_never_breaks_the_time_checks() {
+    use ingest::{Reason, Validator};
+    // One channel limited to 100 Hz: after the burst of 3, a sample 1 ms
+    // later is rejected for rate (its time is remembered by the limiter);
+    // a sample measured between the last accepted one and that rejected one
+    // is then in order for the channel and must be judged, not underflow.
+    let cfg =
+        test_config(&["ingest.channels=[{id = 0, components = [0, 1], max_rate_hz = 100.0}]"]);
+    let mut v = Validator::new(&cfg).unwrap();
+    let mut o = Observation::default();
+    let now = 10_000_000_000u64;
+    let ms = 1_000_000u64;
+    let t0 = now - 100 * ms;
+    for k in 0..3u64 {
+        assert_eq!(
+            v.check(&sample(0, k, t0 + k * ms, &[5.0, 0.1]), now, &mut o),
+            Ok(0)
+        );
+    }
+    // Tokens: 3 → 2 → 1.1 → 0.2; 3 ms later 0.5 < 1.
+    assert_eq!(
+        v.check(&sample(0, 3, t0 + 5 * ms, &[5.0, 0.1]), now, &mut o),
+        Err(Reason::Rate)
+    );
+    // In order for the channel (after t0 + 2 ms), before the limiter's
+    // last time: no refill, still limited.
+    assert_eq!(
+        v.check(&sample(0, 4, t0 + 3 * ms, &[5.0, 0.1]), now, &mut o),
+        Err(Reason::Rate)
+    );
+    // 35 ms later the bucket has refilled.
+    assert_eq!(
+        v.check(&sample(0, 5, t0 + 40 * ms, &[5.0, 0.1]), now, &mut o),
+        Ok(2)
+    );
+}
+
+#[test]
+fn ingest_merges_two_channels_in_measurement_order() {
+    // Range on channel 1, bearing on channel 2, arriving out of order.
+    let cfg = test_config(&[
+        "ingest.channels=[{id = 1, components = [0]}, {id = 2, components = [1]}]",
+        "ingest.reorder_window_ms=200.0",
+    ]);
+    let _c = Cleanup(cfg.run.prefix.clone());
+    let stop = Arc::new(AtomicBool::new(false));
+    let bus = Bus::open(&cfg.bus(), "test").unwrap();
+    let stats = bus.subscriber::<StageStats>().unwrap();
+    let obs = bus.subscriber_with::<Observation>(32, false).unwrap();
+    let mut sensor = bus.publisher::<SensorSample>().unwrap();
+    let h = spawn(StageKind::Ingest, &cfg, &stop);
+    wait_ready(&stats, 1);
+    let ms = 1_000_000u64;
+    let t0 = MonotonicClock.now_ns();
+    let mut recv = Vec::new();
+    let take = |recv: &mut Vec<Observation>| {
+        while let Some(o) = obs.receive().unwrap() {
+            recv.push(o);
+        }
+    };
+    // (channel, seq, t): channel 2's sample at t0+5 arrives after channel
+    // 1's at t0+10; channel 1's at t0+12 is held until channel 2 passes it.
+    let sends = [
+        (1, 0, 0),
+        (2, 0, 1),
+        (1, 1, 10),
+        (2, 1, 5),
+        (1, 2, 12),
+        (2, 2, 20),
+    ];
+    for (c, seq, dt) in sends {
+        sensor
+            .publish(&sample(
+                c,
+                seq,
+                t0 + dt * ms,
+                &[if c == 1 { 5.0 } else { 0.3 }],
+            ))
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // The last one leaves when its window expires.
+    poll_until(Duration::from_secs(10), || {
+        take(&mut recv);
+        (recv.len() >= 6).then_some(())
+    });
+    // In order for channel 1 (its last was t0+12) but measured before the
+    // last forwarded observation (t0+20): too late for the filter.
+    sensor.publish(&sample(1, 3, t0 + 15 * ms, &[5.0])).unwrap();
+    std::thread::sleep(Duration::from_millis(100));
+    take(&mut recv);
+    stop.store(true, Ordering::SeqCst);
+    let fin = h.join().unwrap().unwrap();
+    take(&mut recv);
+    let got: Vec<(u32, u64)> = recv
+        .iter()
+        .map(|o| (o.channel, (o.header.t_valid_ns - t0) / ms))
+        .collect();
+    assert_eq!(got, vec![(1, 0), (2, 1), (2, 5), (1, 10), (1, 12), (2, 20)]);
+    for o in &recv {
+        let want = if o.channel == 1 { 0b01 } else { 0b10 };
+        assert_eq!(o.mask, want, "each channel fills its own component");
+    }
+    assert_eq!(fin.processed, 6);
+    assert_eq!(fin.rejected_by_reason[ingest::Reason::TooOld as usize], 1);
+    assert_eq!(fin.rejected, 1);
 }
 
 #[test]
@@ -243,7 +351,7 @@ fn ship_observations(cfg: &PipelineConfig, n: usize, t0: u64) -> Vec<(Observatio
 
 #[test]
 fn filter_loop_publishes_one_belief_per_observation_and_tracks_the_ship() {
-    for backend in ["pf", "ekf"] {
+    for backend in ["pf", "ekf", "ukf"] {
         let cfg = test_config(&[
             &format!("filter.backend={backend}"),
             "filter.pf.particles=500",
@@ -532,4 +640,38 @@ fn all_stage_loops_close_the_loop_in_one_process() {
             .count
             > 0
     );
+}
+
+#[test]
+fn control_skips_stale_beliefs_under_the_freshness_policy() {
+    let cfg = test_config(&["control.mppi.samples=64", "control.max_belief_age_us=2000"]);
+    let _c = Cleanup(cfg.run.prefix.clone());
+    let stop = Arc::new(AtomicBool::new(false));
+    let bus = Bus::open(&cfg.bus(), "test").unwrap();
+    let stats = bus.subscriber::<StageStats>().unwrap();
+    let controls = bus.subscriber_with::<Control>(64, false).unwrap();
+    let mut beliefs = bus.publisher::<Belief>().unwrap();
+    let h = spawn(StageKind::Control, &cfg, &stop);
+    wait_ready(&stats, 1);
+    let clock = MonotonicClock;
+    let g = crate::belief::Gaussian::diagonal(&[0.0; 4], &[0.1; 4]);
+    let mut seqs = Vec::new();
+    for k in 0..10u64 {
+        let mut b = Belief::default();
+        b.set_gaussian(&g);
+        b.header.seq = k;
+        b.header.t_valid_ns = clock.now_ns();
+        // Even beliefs were published 50 ms ago (stale), odd ones now.
+        b.header.t_pub_ns = clock.now_ns() - if k % 2 == 0 { 50_000_000 } else { 0 };
+        beliefs.publish(&b).unwrap();
+        std::thread::sleep(Duration::from_millis(30));
+        while let Some(c) = controls.receive().unwrap() {
+            seqs.push(c.header.seq);
+        }
+    }
+    stop.store(true, Ordering::SeqCst);
+    let fin = h.join().unwrap().unwrap();
+    assert_eq!(fin.processed, 5, "{fin:?}");
+    assert_eq!(fin.dropped, 5);
+    assert_eq!(seqs.len(), 5);
 }
