@@ -53,9 +53,9 @@ fn x_range(rows: &[Vec<(f64, u64)>]) -> Option<(f64, f64)> {
     if !(hi > 0.0) {
         return None;
     }
-    // Four decades below the maximum are plenty; values under the floor
+    // Five decades below the maximum are plenty; values under the floor
     // (a jitter of a few ns) are drawn at it.
-    let lo = lo.max(hi * 1e-4).max(1e-2);
+    let lo = lo.max(hi * 1e-5).max(1e-2);
     Some((lo / 1.25, (hi * 1.25).max(lo * 2.0)))
 }
 
