@@ -353,7 +353,15 @@ pub fn run(
                     while let Some(mut r) = merge.pop_ready(clock.now_ns()) {
                         forward(&mut r, &mut out_seq, obs, &mut m, clock.now_ns())?;
                     }
-                    m.budget.record(t_in, clock.now_ns());
+                    // Released when the sensor published it (its measurement
+                    // time when the publisher left the stamp 0): lateness
+                    // then covers queueing in front of ingest too.
+                    let release = if s.t_pub_ns != 0 {
+                        s.t_pub_ns
+                    } else {
+                        s.t_meas_ns
+                    };
+                    m.budget.record_released(release, t_in, clock.now_ns());
                 }
             }
             while let Some(mut r) = merge.pop_ready(clock.now_ns()) {
