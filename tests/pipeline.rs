@@ -330,7 +330,13 @@ fn after_the_launcher_is_killed_its_stages_stop_and_a_sweep_removes_the_run() {
     });
     // The first line names the prefix; wait for a status line (all up).
     let first = rx.recv_timeout(Duration::from_secs(30)).unwrap();
-    let prefix = first.rsplit(' ').next().unwrap().to_string();
+    // "bus: prefix=<prefix> instance=… sensor=…" (or the prefix last).
+    let prefix = first
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("prefix="))
+        .or_else(|| first.rsplit(' ').next())
+        .unwrap()
+        .to_string();
     assert!(prefix.starts_with("iox2_bb-"), "{first}");
     loop {
         let l = rx.recv_timeout(Duration::from_secs(30)).unwrap();
