@@ -1,7 +1,9 @@
 //! `beliefbus`: the user-facing command. Subcommands: `run` (the launcher,
 //! issue 2; `--sensor external` for external sensor publishers, issue 7),
 //! `plant` (the simulated plant as an external publisher, issue 7) and
-//! `experiment` (paper reproductions).
+//! `experiment` (paper reproductions); the hidden `stage NAME` runs one
+//! stage in this process (the launcher's fallback when the stage
+//! executables next to it are missing or from another build).
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -102,6 +104,12 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+    /// One-way latency of beliefbus's ports against bare iceoryx2, per message type.
+    Latency(beliefbus::latency::cli::LatencyArgs),
+    /// Timer wake-up jitter baseline per core (cyclictest-style).
+    Jitter(beliefbus::latency::cli::JitterArgs),
+    #[command(hide = true)]
+    LatencyPong(beliefbus::latency::cli::PongArgs),
 }
 
 fn main() {
@@ -181,6 +189,9 @@ fn run(cli: Cli) -> Result<()> {
         Command::Run { .. } | Command::Stage { .. } | Command::Plant { .. } => {
             unreachable!("handled in main")
         }
+        Command::Latency(a) => beliefbus::latency::cli::latency(a),
+        Command::Jitter(a) => beliefbus::latency::cli::jitter(a),
+        Command::LatencyPong(a) => beliefbus::latency::cli::pong(a),
         Command::Experiment {
             name,
             list,

@@ -20,6 +20,7 @@ pub mod control;
 pub mod experiments;
 pub mod filter;
 pub mod ipc;
+pub mod latency;
 pub mod model;
 pub mod pipeline;
 pub mod rng;

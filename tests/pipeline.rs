@@ -362,3 +362,77 @@ fn after_the_launcher_is_killed_its_stages_stop_and_a_sweep_removes_the_run() {
         shm_files(&prefix)
     );
 }
+
+#[test]
+fn stages_started_by_hand_form_a_pipeline_and_clean_up_after_themselves() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    use beliefbus::ipc::{Bus, Control, StageStats};
+    let prefix = beliefbus::ipc::cleanup::run_prefix();
+    let set_prefix = format!("run.prefix=\"{prefix}\"");
+    let cfg = beliefbus::pipeline::config::load(
+        &root().join("configs/default.toml"),
+        std::slice::from_ref(&set_prefix),
+    )
+    .unwrap();
+    let bus = Bus::open(&cfg.bus(), "observer").unwrap();
+    let stats = bus.subscriber_with::<StageStats>(64, false).unwrap();
+    let controls = bus.subscriber_with::<Control>(256, false).unwrap();
+    let start = |name: &str| {
+        Command::new(match name {
+            "ingest" => env!("CARGO_BIN_EXE_beliefbus-ingest"),
+            "filter" => env!("CARGO_BIN_EXE_beliefbus-filter"),
+            "control" => env!("CARGO_BIN_EXE_beliefbus-control"),
+            "refine" => env!("CARGO_BIN_EXE_beliefbus-refine"),
+            _ => env!("CARGO_BIN_EXE_beliefbus-plant"),
+        })
+        .args(["configs/default.toml", "--set", &set_prefix])
+        .current_dir(root())
+        .spawn()
+        .unwrap()
+    };
+    let mut children: Vec<_> = ["control", "refine", "filter", "ingest"]
+        .iter()
+        .map(|n| start(n))
+        .collect();
+    // Wait for their first reports, then start the plant.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut up = std::collections::HashSet::new();
+    while up.len() < 4 {
+        assert!(Instant::now() < deadline, "stages did not come up");
+        while let Some(s) = stats.receive().unwrap() {
+            up.insert(s.stage);
+        }
+        controls.refresh();
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    children.push(start("plant"));
+    let mut n = 0;
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while n < 100 {
+        assert!(Instant::now() < deadline, "only {n} controls");
+        while controls.receive().unwrap().is_some() {
+            n += 1;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    drop(controls);
+    drop(stats);
+    drop(bus);
+    for c in &children {
+        // SAFETY: signalling our own children.
+        unsafe { libc::kill(c.id() as i32, libc::SIGINT) };
+    }
+    for c in &mut children {
+        assert!(c.wait().unwrap().success());
+    }
+    // The last one out removed the prefix (our observer node left first).
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !shm_files(&prefix).is_empty() {
+        if Instant::now() > deadline {
+            let _ = beliefbus::ipc::cleanup::remove_prefix(&prefix);
+            panic!("left behind: {:?}", shm_files(&prefix));
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}

@@ -4,7 +4,10 @@
 //! path-integral control (paper 003).
 
 pub mod cost;
+pub mod implicit;
 pub mod mppi;
+pub mod naive_pi;
+pub mod path_integral;
 pub mod waypoints;
 
 use crate::belief::Gaussian;

@@ -6,7 +6,19 @@
 //! (`{"experiment", "params", "results": [{"method", <metric>...}], "paper": [...]}`),
 //! and prints the same numbers as a table.
 
+pub mod arm;
+pub mod chain_util;
+pub mod convergence;
+pub mod decoding;
+pub mod double_slit;
+pub mod himmelblau;
+pub mod param_estimation;
+pub mod pi_common;
 pub mod report;
+pub mod ship;
+pub mod ship_control;
+pub mod smoothing;
+pub mod vanderpol;
 
 pub use report::{ExperimentReport, Progress, Row};
 
@@ -46,6 +58,56 @@ pub struct Experiment {
 pub fn all() -> Vec<Experiment> {
     vec![
         // Each issue registers its experiments here.
+        Experiment {
+            name: "convergence",
+            about: "moments of chain trajectories vs the OU process of eq. 2.9 as n grows (thesis Fig. 2-4)",
+            run: convergence::run,
+        },
+        Experiment {
+            name: "vanderpol",
+            about: "chain filter vs PF/EKF/UKF on Van der Pol (paper 001 eq. 12), error-vs-compute curve",
+            run: vanderpol::run,
+        },
+        Experiment {
+            name: "ship",
+            about: "chain filter vs PF-100/EKF/UKF on the drifting ship (paper 001 eq. 10-11)",
+            run: ship::run,
+        },
+        Experiment {
+            name: "param-estimation",
+            about: "joint state/parameter estimation (paper 001 eq. 13): chain filter vs PF-100",
+            run: param_estimation::run,
+        },
+        Experiment {
+            name: "smoothing",
+            about: "forward-backward smoother vs chain filter vs PF-1000 on Van der Pol (thesis 3.5.3)",
+            run: smoothing::run,
+        },
+        Experiment {
+            name: "decoding",
+            about: "MAP trajectory decoding on chains (thesis Alg. 3.2, paper 001 Fig. 6) vs exact RTS",
+            run: decoding::run,
+        },
+        Experiment {
+            name: "double-slit",
+            about: "paper 003 Table 2: implicit-sampling path-integral control of the double slit vs the analytic solution and naive MC",
+            run: double_slit::run,
+        },
+        Experiment {
+            name: "himmelblau",
+            about: "paper 003 Table 4: minimising Himmelblau's function by stochastic optimal control vs undamped Newton",
+            run: himmelblau::run,
+        },
+        Experiment {
+            name: "arm",
+            about: "paper 003 Fig. 4: path-integral control of the two-link arm with a wrong payload (m1 = 1.4) vs the exact optimal controller",
+            run: arm::run,
+        },
+        Experiment {
+            name: "ship-control",
+            about: "closed-loop ship: implicit path-integral control vs MPPI-2048/512, cost and compute per control",
+            run: ship_control::run,
+        },
     ]
 }
 

@@ -11,11 +11,14 @@
 //! on linear models), and the Markov-chain filter of thesis ch. 3.
 
 pub mod build;
+pub mod chain_filter;
+pub mod decoder;
 pub mod ekf;
 pub mod gauss;
 pub mod kalman;
 pub mod pf;
 pub mod resample;
+pub mod smoother;
 pub mod ukf;
 
 use crate::belief::Gaussian;

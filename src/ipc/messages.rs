@@ -533,7 +533,14 @@ pub struct StageStats {
     pub mean_goal_distance: f64,
     /// Plant only: waypoints reached (as last reported by control).
     pub waypoints_reached: u64,
-    pub reserved: [u64; 4],
+    /// Messages finished later than release + budget (positive lateness;
+    /// see [`crate::rt::budget`]).
+    pub late: u64,
+    /// Response time (input published → processed): p50, p99, max in ns.
+    /// Lateness = response − budget.
+    pub response_p50_ns: u64,
+    pub response_p99_ns: u64,
+    pub response_max_ns: u64,
 }
 
 impl Default for StageStats {
@@ -556,7 +563,10 @@ impl Default for StageStats {
             processed_after_warmup: 0,
             mean_goal_distance: 0.0,
             waypoints_reached: 0,
-            reserved: [0; 4],
+            late: 0,
+            response_p50_ns: 0,
+            response_p99_ns: 0,
+            response_max_ns: 0,
         }
     }
 }

@@ -24,12 +24,14 @@ pub mod messages;
 mod ports;
 pub mod sensor_api;
 mod signals;
+mod slice;
 mod wait;
 
 pub use messages::*;
 pub use ports::{Message, Publisher, Qos, Subscriber};
 pub use signals::install_stop_handler;
-pub use wait::{run_loop, Wake, WakeMode, Wakeable};
+pub use slice::{SliceElem, SlicePublisher, SliceQos, SliceSubscriber};
+pub use wait::{run_loop, Wake, WakeMode, Wakeable, STOP_POLL};
 
 use iceoryx2::prelude::*;
 

@@ -351,6 +351,14 @@ impl<M: Message> Subscriber<M> {
         self.subscriber.has_samples().unwrap_or(false)
     }
 
+    /// Connect to publishers that appeared since the last receive, so their
+    /// first samples are not missed (a subscriber otherwise connects lazily,
+    /// on its next receive).
+    pub fn refresh(&self) {
+        use iceoryx2::port::update_connections::UpdateConnections;
+        let _ = self.subscriber.update_connections();
+    }
+
     /// Consume pending wake-up notifications (so a WaitSet does not report
     /// them again).
     pub fn drain_wakeups(&self) {

@@ -178,8 +178,11 @@ fn wake_round_trip(mode: WakeMode) {
         let mut o = Observation::default();
         o.header.seq = i;
         p.publish(&o).unwrap();
-        // Pace the producer so the 8-deep queue never overflows.
-        std::thread::sleep(Duration::from_micros(300));
+        // Lockstep: the next message only after the loop received this one
+        // (so the 8-deep queue cannot overflow however slow the machine).
+        while received.load(Ordering::SeqCst) <= i {
+            std::thread::sleep(Duration::from_micros(50));
+        }
         if i == 50 {
             std::thread::sleep(Duration::from_millis(60)); // let a tick pass
         }

@@ -5,6 +5,7 @@
 //! two cores only the latency-critical stages should use it.
 
 use super::ports::{Message, Subscriber};
+use super::slice::{SliceElem, SliceSubscriber};
 use super::IpcError;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
@@ -37,6 +38,7 @@ mod sealed {
         ) -> Option<&iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service>>;
         fn has_data(&self) -> bool;
         fn drain_wakeups(&self);
+        fn refresh(&self);
     }
 }
 
@@ -53,11 +55,30 @@ impl<M: Message> sealed::Sealed for Subscriber<M> {
     fn drain_wakeups(&self) {
         Subscriber::drain_wakeups(self)
     }
+    fn refresh(&self) {
+        Subscriber::refresh(self)
+    }
 }
 impl<M: Message> Wakeable for Subscriber<M> {}
 
-/// Longest blocking wait between stop-flag checks.
-const STOP_POLL: Duration = Duration::from_millis(50);
+impl<T: SliceElem> sealed::Sealed for SliceSubscriber<T> {
+    fn listener(&self) -> Option<&Listener<ipc::Service>> {
+        self.listener.as_ref()
+    }
+    fn has_data(&self) -> bool {
+        SliceSubscriber::has_data(self)
+    }
+    fn drain_wakeups(&self) {
+        SliceSubscriber::drain_wakeups(self)
+    }
+    fn refresh(&self) {
+        SliceSubscriber::refresh(self)
+    }
+}
+impl<T: SliceElem> Wakeable for SliceSubscriber<T> {}
+
+/// Longest blocking wait between stop-flag checks (and connection refreshes).
+pub const STOP_POLL: Duration = Duration::from_millis(50);
 
 /// Run `body` until it breaks or `stop` is set: `body(Wake::Data)` whenever
 /// an input was notified or (spin mode) has data, `body(Wake::Tick)` every
@@ -129,6 +150,12 @@ where
                 // A timeout with data waiting (e.g. a notification consumed
                 // with an earlier batch) still runs the body.
                 data = woke || any_data();
+                if !woke {
+                    // Idle: connect to publishers that appeared meanwhile.
+                    for i in inputs {
+                        sealed::Sealed::refresh(*i);
+                    }
+                }
             }
         }
         if data {

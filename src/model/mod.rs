@@ -16,9 +16,14 @@
 //! is the same thing with `y_k = Δy/Δ` and `σ = G/√Δ`; the experiments build
 //! their models that way (see [`continuous_obs_std`]).
 
+pub mod affine;
+pub mod arm;
 pub mod bounds;
 pub mod discrete;
+pub mod double_slit;
+pub mod himmelblau;
 pub mod linear;
+pub mod param_estimation;
 pub mod ship;
 pub mod vanderpol;
 

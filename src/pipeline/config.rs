@@ -19,6 +19,7 @@ use crate::control::mppi::MppiConfig;
 use crate::control::waypoints::RouteConfig;
 use crate::filter::ekf::EkfConfig;
 use crate::filter::pf::PfConfig;
+use crate::filter::ukf::UkfConfig;
 use crate::ipc::{StageKind, WakeMode};
 use crate::model::ship::ShipParams;
 use crate::model::vanderpol::VanDerPolParams;
@@ -191,6 +192,7 @@ impl Default for IngestConfig {
 pub enum FilterBackend {
     Pf,
     Ekf,
+    Ukf,
 }
 
 impl FilterBackend {
@@ -198,6 +200,7 @@ impl FilterBackend {
         match self {
             FilterBackend::Pf => "pf",
             FilterBackend::Ekf => "ekf",
+            FilterBackend::Ukf => "ukf",
         }
     }
 }
@@ -215,6 +218,8 @@ pub struct FilterConfig {
     pub pf: PfConfig,
     #[serde(default)]
     pub ekf: EkfConfig,
+    #[serde(default)]
+    pub ukf: UkfConfig,
 }
 
 /// Controller backends.
@@ -261,6 +266,12 @@ pub struct ControlConfig {
     pub cost: Option<CostConfig>,
     #[serde(default)]
     pub mppi: MppiConfig,
+    /// Freshest-data policy: a belief older than this (µs since it was
+    /// published) when the controller gets to it is skipped and counted as
+    /// dropped, so a controller slower than the sensor computes on fresh
+    /// beliefs only (0: compute on every latest belief).
+    #[serde(default)]
+    pub max_belief_age_us: f64,
 }
 
 /// `[refine]`: the anytime chain refinement (issue 4 fills it in).
@@ -687,6 +698,9 @@ impl PipelineConfig {
         f.ekf
             .validate()
             .map_err(|e| ConfigError::new(format!("filter.ekf.{}", e.key), e.problem))?;
+        f.ukf
+            .validate(dims.state)
+            .map_err(|e| ConfigError::new(format!("filter.ukf.{}", e.key), e.problem))?;
 
         self.validate_control(&model)?;
 
@@ -714,6 +728,12 @@ impl PipelineConfig {
 
     fn validate_control(&self, model: &AnyModel) -> Result<(), ConfigError> {
         let c = &self.control;
+        if !(c.max_belief_age_us.is_finite() && c.max_belief_age_us >= 0.0) {
+            return Err(ConfigError::new(
+                "control.max_belief_age_us",
+                "must be >= 0",
+            ));
+        }
         if c.backend == ControlBackend::None {
             return Ok(());
         }

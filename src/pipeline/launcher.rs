@@ -132,11 +132,11 @@ fn spawn(
 ) -> Result<Stage> {
     let (mut cmd, own) = stage_command(kind)?;
     if !own {
-        notes.push(format!(
-            "beliefbus-{} next to this executable is missing or from another build; running it as `beliefbus stage {}`",
-            kind.name(),
-            kind.name()
-        ));
+        let n = "stage executables next to beliefbus are missing or from another build \
+                 (`cargo run` builds only beliefbus); ran the stages as `beliefbus stage <name>`";
+        if !notes.iter().any(|x| x == n) {
+            notes.push(n.to_string());
+        }
     }
     cmd.arg(&opts.config).arg("--prefix").arg(prefix);
     for s in &opts.sets {
@@ -366,6 +366,7 @@ fn drive(
             }
         }
         if stop.load(Ordering::Relaxed) {
+            eprintln!("stopping (signal)");
             return Ok(());
         }
         if Instant::now() > deadline {
@@ -373,6 +374,10 @@ fn drive(
         }
         std::thread::sleep(Duration::from_millis(2));
     }
+    // Let every waiting stage connect to the publishers that appeared after
+    // it (they refresh their connections when idle), so no first sample is
+    // lost.
+    std::thread::sleep(3 * ipc::STOP_POLL);
     if opts.sensor == SensorSource::Plant {
         stages.push(spawn(StageKind::Plant, opts, prefix, notes)?);
     } else {

@@ -134,6 +134,14 @@ impl ReportInput {
             let s = end.stats.unwrap_or_default();
             let has = end.stats.is_some();
             let c = &s.compute;
+            // Lateness = response − budget (negative: early); null without data.
+            let lateness = |r: u64| {
+                if s.response_max_ns > 0 {
+                    json!((r as f64 - s.budget_ns as f64) / 1e3)
+                } else {
+                    Value::Null
+                }
+            };
             stages.insert(
                 kind.name().to_string(),
                 json!({
@@ -147,6 +155,10 @@ impl ReportInput {
                     "compute_p50_us": if c.count > 0 { json!(us(c.p50_ns)) } else { Value::Null },
                     "compute_p99_us": if c.count > 0 { json!(us(c.p99_ns)) } else { Value::Null },
                     "budget_us": us(s.budget_ns),
+                    "late": s.late,
+                    "lateness_p50_us": lateness(s.response_p50_ns),
+                    "lateness_p99_us": lateness(s.response_p99_ns),
+                    "lateness_max_us": lateness(s.response_max_ns),
                     "fifo": has && s.flags & stats_flags::FIFO != 0,
                     "mlocked": has && s.flags & stats_flags::MLOCKED != 0,
                     "final_report": has && s.flags & stats_flags::FINAL != 0,
@@ -216,7 +228,7 @@ impl ReportInput {
         }
         out.push('\n');
         out.push_str(&format!(
-            "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>10} {:>10} {:>9}\n",
+            "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>10} {:>10} {:>9} {:>6} {:>11}\n",
             "stage",
             "pid",
             "core",
@@ -226,12 +238,14 @@ impl ReportInput {
             "misses",
             "cpu p50µs",
             "cpu p99µs",
-            "budgetµs"
+            "budgetµs",
+            "late",
+            "late p99µs"
         ));
         for (kind, end) in &self.stages {
             let s = end.stats.unwrap_or_default();
             out.push_str(&format!(
-                "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>10.1} {:>10.1} {:>9.0}\n",
+                "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>10.1} {:>10.1} {:>9.0} {:>6} {:>11}\n",
                 kind.name(),
                 end.pid.map(|p| p.to_string()).unwrap_or("-".into()),
                 if s.core >= 0 {
@@ -246,6 +260,12 @@ impl ReportInput {
                 us(s.compute.p50_ns),
                 us(s.compute.p99_ns),
                 us(s.budget_ns),
+                s.late,
+                if s.response_max_ns > 0 {
+                    format!("{:.1}", us(s.response_p99_ns) - us(s.budget_ns))
+                } else {
+                    "-".into()
+                },
             ));
         }
         let a = &self.accuracy;
@@ -278,6 +298,11 @@ mod tests {
         let mut ctl = StageStats {
             stage: StageKind::Control as u32,
             processed: 10,
+            budget_ns: 700_000,
+            late: 2,
+            response_p50_ns: 400_000,
+            response_p99_ns: 750_000,
+            response_max_ns: 900_000,
             ..StageStats::default()
         };
         ctl.hops[0] = HopStats {
@@ -343,6 +368,13 @@ mod tests {
         }
         assert_eq!(v["hops"]["sensor->control"]["p50_us"], json!(1.5));
         assert_eq!(v["hops"]["sensor->control"]["count"], json!(9));
+        // Lateness = response − budget, negative when early; null without data.
+        let c = &v["stages"]["control"];
+        assert_eq!(c["late"], json!(2));
+        assert_eq!(c["lateness_p50_us"], json!(-300.0));
+        assert_eq!(c["lateness_p99_us"], json!(50.0));
+        assert_eq!(c["lateness_max_us"], json!(200.0));
+        assert!(v["stages"]["filter"]["lateness_p99_us"].is_null());
         for s in StageKind::ALL {
             let st = &v["stages"][s.name()];
             for k in [
@@ -355,6 +387,10 @@ mod tests {
                 "compute_p50_us",
                 "compute_p99_us",
                 "budget_us",
+                "late",
+                "lateness_p50_us",
+                "lateness_p99_us",
+                "lateness_max_us",
             ] {
                 assert!(st.get(k).is_some(), "stages.{}.{k}", s.name());
             }

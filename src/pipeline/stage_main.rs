@@ -6,6 +6,9 @@
 //! ```text
 //! beliefbus-<stage> [CONFIG] [--set KEY=VALUE ...] [--prefix PREFIX]
 //! ```
+//! Started by hand (without `--prefix`), the last stage to stop removes the
+//! prefix's remaining shared memory; under the launcher, the launcher does.
+//!
 //! Exit status: 0 after a clean stop (SIGINT/SIGTERM), 2 for a bad config or
 //! bad arguments (one line on stderr), 1 for a runtime failure.
 
@@ -86,11 +89,27 @@ where
         eprintln!("warning: {w}");
     }
     let id = StageIdentity::this_process(kind, &rt);
-    match run_stage(&cfg.bus(), &cfg, id, &MonotonicClock, stop) {
+    let code = match run_stage(&cfg.bus(), &cfg, id, &MonotonicClock, stop) {
         Ok(_) => 0,
         Err(e) => {
             eprintln!("{name}: {e}");
             1
         }
+    };
+    // Started by hand (no launcher owns the prefix): the last stage out
+    // removes what the prefix left (nothing is removed while any node of
+    // it is alive).
+    // Stages stopped together (Ctrl-C in their terminal) see each other
+    // alive for a moment, so wait briefly for the others to go.
+    if args.prefix.is_none() {
+        let deadline = std::time::Instant::now() + std::time::Duration::from_millis(300);
+        loop {
+            match ipc::cleanup::remove_prefix(&cfg.run.prefix) {
+                Ok(r) if r.alive_nodes == 0 => break,
+                _ if std::time::Instant::now() > deadline => break,
+                _ => std::thread::sleep(std::time::Duration::from_millis(20)),
+            }
+        }
     }
+    code
 }

@@ -6,6 +6,11 @@
 //! call (MPPI draws its noise there), keeping that work off the
 //! sensor→control path.
 //!
+//! With `control.max_belief_age_us` > 0 a belief that waited longer than
+//! that (the controller was still busy with an earlier one) is skipped and
+//! counted as dropped: a controller slower than the sensor then runs on
+//! fresh beliefs only, trading control rate for latency.
+//!
 //! A controller failure publishes the last good control (zero before the
 //! first) flagged `FALLBACK` and counts the reason. With backend `none`
 //! (estimation-only scenarios) the stage consumes beliefs and publishes
@@ -165,6 +170,7 @@ pub fn run(
     };
     let mut out_seq = 0u64;
     let mut err = None;
+    let max_age_ns = (cfg.control.max_belief_age_us * 1e3) as u64;
     if let Some(b) = backend.as_mut() {
         b.prepare();
     }
@@ -181,9 +187,14 @@ pub fn run(
                 if let Some(b) = latest {
                     let t_in = clock.now_ns();
                     m.dropped += skipped + seq.observe(b.header.seq);
+                    if max_age_ns > 0 && t_in.saturating_sub(b.header.t_pub_ns) > max_age_ns {
+                        m.dropped += 1; // stale: wait for a fresh one
+                        return Ok(());
+                    }
                     let Some(backend) = backend.as_mut() else {
                         m.processed += 1;
-                        m.budget.record(t_in, clock.now_ns());
+                        m.budget
+                            .record_released(b.header.t_pub_ns, t_in, clock.now_ns());
                         return Ok(());
                     };
                     let g = b.gaussian();
@@ -227,7 +238,7 @@ pub fn run(
                     control.publish(&out)?;
                     out_seq += 1;
                     m.processed += 1;
-                    m.budget.record(t_in, now);
+                    m.budget.record_released(b.header.t_pub_ns, t_in, now);
                     m.record_hops(&out.trace);
                     // Off the critical path: the next call's noise.
                     backend.prepare();

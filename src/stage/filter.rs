@@ -15,6 +15,7 @@ use super::{
 use crate::belief::Gaussian;
 use crate::filter::ekf::Ekf;
 use crate::filter::pf::Pf;
+use crate::filter::ukf::Ukf;
 use crate::filter::{BayesFilter, FilterError};
 use crate::ipc::{
     belief_status, run_loop, Belief, Bus, Control, Hop, Observation, Publisher, StageKind,
@@ -116,6 +117,9 @@ pub fn make_filter(cfg: &PipelineConfig, t0: f64) -> Result<Box<dyn BayesFilter>
         FilterBackend::Ekf => {
             Box::new(Ekf::new(model, &cfg.filter.ekf, &prior, t0).map_err(|e| build(&e))?)
         }
+        FilterBackend::Ukf => {
+            Box::new(Ukf::new(model, &cfg.filter.ukf, &prior, t0).map_err(|e| build(&e))?)
+        }
     })
 }
 
@@ -208,7 +212,7 @@ pub fn run(
                     belief.publish(&out)?;
                     out_seq += 1;
                     m.processed += 1;
-                    m.budget.record(t_in, now);
+                    m.budget.record_released(o.header.t_pub_ns, t_in, now);
                     m.record_hops(&out.trace);
                 }
             }

@@ -190,6 +190,10 @@ impl Metrics {
                 0.0
             },
             waypoints_reached: self.waypoints_reached,
+            late: self.budget.late(),
+            response_p50_ns: self.budget.response().quantile(0.5),
+            response_p99_ns: self.budget.response().quantile(0.99),
+            response_max_ns: self.budget.response().max(),
             ..StageStats::default()
         };
         for (slot, (hop, h)) in s.hops.iter_mut().zip(&self.hops) {

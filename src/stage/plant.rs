@@ -229,7 +229,8 @@ pub fn run_for(
         ports.truth.publish(&truth)?;
 
         m.processed += 1;
-        m.budget.record(t_wake, t_pub);
+        // Released when the tick was due.
+        m.budget.record_released(t_k, t_wake, t_pub);
         if m.past_warmup(t_k) {
             m.processed_after_warmup += 1;
             if let (Some(g), 2) = (goal, pos_axes.len()) {

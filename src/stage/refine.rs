@@ -51,7 +51,8 @@ pub fn run(
                 if let Some(b) = latest {
                     m.dropped += skipped + seq.observe(b.header.seq);
                     m.processed += 1;
-                    m.budget.record(t_in, clock.now_ns());
+                    m.budget
+                        .record_released(b.header.t_pub_ns, t_in, clock.now_ns());
                 }
             }
             stats.tick(&m, clock.now_ns())?;

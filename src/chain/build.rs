@@ -1,0 +1,668 @@
+//! The chain M_n = (S_n, P_n, T_n) and its construction: `ConnectState`
+//! (thesis Alg. 2.2), batch construction (Alg. 2.1) and incremental
+//! construction with reconnection of every neighbour of a new state
+//! (Alg. 2.3).
+//!
+//! ```text
+//! ConnectState(z):  Δt(z) ← ComputeHoldingTime(z);  Z ← Near(z, S);
+//!                   P(· | z) ← ComputeTransProb(z, Z, Δt(z))
+//! Alg. 2.1:  sample N states, then ConnectState every state with n = N
+//! Alg. 2.3:  per new z: S ← S ∪ {z}; ConnectState(z); ConnectState(z') ∀ z' ∈ Near(z)
+//! ```
+//!
+//! Storage is flat: coordinates n × d in one `Vec<f64>`, stable `u32` ids,
+//! holding times, radii, and slab/CSR transitions ([`super::storage`]).
+//! Per-state caches of f(z), ‖f‖, ‖FFᵀ‖ and the Cholesky factor of FFᵀ make
+//! reconnection independent of model evaluation cost; the model is needed
+//! only when a state is added. Columns are state *slots* (indices into the
+//! arrays); ids are what survives across versions.
+
+use super::index::{SpatialIndex, MAX_INDEX_DIM};
+use super::kernel::{
+    gaussian, holding_time, moment_matched, KernelKind, KernelOutcome, KernelWork, LocalDyn,
+    MAX_LP_NEIGHBOURS,
+};
+use super::linalg::{cholesky, sym_spectral_norm};
+use super::sample::Sampler;
+use super::storage::{ChainView, Transitions};
+use super::{ChainConfig, ChainError, NearRule};
+use crate::model::SdeModel;
+use crate::rng::SimRng;
+use crate::{MAX_NOISE, MAX_STATE};
+
+/// Transition probabilities below this are dropped from a row.
+pub const MIN_PROB: f64 = 1e-12;
+
+/// Counters of construction work and kernel outcomes.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ChainStats {
+    /// ConnectState calls.
+    pub connects: u64,
+    /// Rows from the Gaussian kernel (incl. LP fallbacks).
+    pub gaussian: u64,
+    /// LP rows meeting the moment equations exactly.
+    pub exact: u64,
+    /// LP rows that were infeasible (least-violating fit).
+    pub least_squares: u64,
+    /// States with no neighbour (absorbing).
+    pub absorbing: u64,
+}
+
+/// A Markov-chain approximation of a diffusion.
+#[derive(Clone)]
+pub struct Chain {
+    dim: usize,
+    cfg: ChainConfig,
+    control_len: usize,
+    states: Vec<f64>,
+    ids: Vec<u32>,
+    holding: Vec<f64>,
+    radius: Vec<f64>,
+    near_count: Vec<u32>,
+    trans: Transitions,
+    // per-state caches
+    drift: Vec<f64>,
+    drift_norm: Vec<f64>,
+    diff_norm: Vec<f64>,
+    ff: Vec<f64>,
+    chol: Vec<f64>,
+    chol_ok: Vec<bool>,
+    index: SpatialIndex,
+    next_id: u32,
+    stats: ChainStats,
+    // scratch
+    neigh: Vec<(u32, f64)>,
+    near_list: Vec<u32>,
+    dz: Vec<f64>,
+    pbuf: Vec<f64>,
+    cbuf: Vec<u32>,
+    work: KernelWork,
+}
+
+impl Chain {
+    /// An empty chain for `model` with construction parameters `cfg`.
+    pub fn new<M: SdeModel + ?Sized>(model: &M, cfg: ChainConfig) -> Result<Self, ChainError> {
+        cfg.validate()?;
+        let dims = model.dims();
+        let d = dims.state;
+        if d == 0 || d > MAX_STATE {
+            return Err(ChainError::Dimension(d));
+        }
+        let index = SpatialIndex::new(d).ok_or(ChainError::Dimension(d))?;
+        Ok(Self {
+            dim: d,
+            cfg,
+            control_len: dims.control,
+            states: vec![],
+            ids: vec![],
+            holding: vec![],
+            radius: vec![],
+            near_count: vec![],
+            trans: Transitions::default(),
+            drift: vec![],
+            drift_norm: vec![],
+            diff_norm: vec![],
+            ff: vec![],
+            chol: vec![],
+            chol_ok: vec![],
+            index,
+            next_id: 0,
+            stats: ChainStats::default(),
+            neigh: Vec::with_capacity(256),
+            near_list: Vec::with_capacity(256),
+            dz: Vec::with_capacity(256 * d),
+            pbuf: Vec::with_capacity(256),
+            cbuf: Vec::with_capacity(256),
+            work: KernelWork::new(),
+        })
+    }
+
+    /// Batch construction (Alg. 2.1): all `points` (flat n × d) first, then
+    /// ConnectState for each with the final n.
+    pub fn batch<M: SdeModel + ?Sized>(
+        model: &M,
+        cfg: ChainConfig,
+        points: &[f64],
+    ) -> Result<Self, ChainError> {
+        let mut c = Self::new(model, cfg)?;
+        let d = c.dim;
+        if !points.len().is_multiple_of(d) {
+            return Err(ChainError::State("points length is not a multiple of d"));
+        }
+        let n = points.len() / d;
+        c.reserve(n);
+        for p in points.chunks_exact(d) {
+            c.push_state(model, p)?;
+        }
+        c.index = SpatialIndex::from_points(d, points).ok_or(ChainError::State(
+            "kd-tree cannot store the states (too many share coordinate values)",
+        ))?;
+        for i in 0..n {
+            c.connect(i)?;
+        }
+        Ok(c)
+    }
+
+    /// Batch construction from `n` draws of `sampler`.
+    pub fn sample_batch<M: SdeModel + ?Sized>(
+        model: &M,
+        cfg: ChainConfig,
+        sampler: &Sampler,
+        n: usize,
+        rng: &mut SimRng,
+    ) -> Result<Self, ChainError> {
+        let pts = sampler.sample_many(model.bounds(), n, rng);
+        Self::batch(model, cfg, &pts)
+    }
+
+    /// Reserve room for `extra` more states.
+    pub fn reserve(&mut self, extra: usize) {
+        let d = self.dim;
+        self.states.reserve(extra * d);
+        self.ids.reserve(extra);
+        self.holding.reserve(extra);
+        self.radius.reserve(extra);
+        self.near_count.reserve(extra);
+        self.drift.reserve(extra * d);
+        self.drift_norm.reserve(extra);
+        self.diff_norm.reserve(extra);
+        self.ff.reserve(extra * d * d);
+        self.chol.reserve(extra * d * d);
+        self.chol_ok.reserve(extra);
+    }
+
+    /// One step of incremental construction (Alg. 2.3 lines 3–8): add `x`,
+    /// connect it, then reconnect each of its Near states with the new n.
+    /// `reconnected` receives the new slot followed by every reconnected
+    /// slot (what exponential backup must check). Returns the new slot.
+    pub fn add_state<M: SdeModel + ?Sized>(
+        &mut self,
+        model: &M,
+        x: &[f64],
+        reconnected: &mut Vec<u32>,
+    ) -> Result<u32, ChainError> {
+        let slot = self.push_state(model, x)?;
+        if self.index.insert(x, slot as u32).is_err() {
+            self.pop_state();
+            return Err(ChainError::State(
+                "kd-tree cannot store it (too many states share coordinate values)",
+            ));
+        }
+        reconnected.clear();
+        self.connect(slot)?;
+        reconnected.push(slot as u32);
+        // Near(z, S_n): the set ConnectState(z) just used.
+        let mut near = std::mem::take(&mut self.near_list);
+        near.clear();
+        near.extend(self.neigh.iter().map(|x| x.0));
+        for &j in &near {
+            self.connect(j as usize)?;
+            reconnected.push(j);
+        }
+        self.near_list = near;
+        Ok(slot as u32)
+    }
+
+    /// Add `count` states drawn from `sampler` incrementally; every slot
+    /// touched (added or reconnected) is appended to `touched`.
+    pub fn grow<M: SdeModel + ?Sized>(
+        &mut self,
+        model: &M,
+        sampler: &Sampler,
+        count: usize,
+        rng: &mut SimRng,
+        touched: &mut Vec<u32>,
+    ) -> Result<(), ChainError> {
+        let mut x = [0.0; MAX_STATE];
+        let mut rec = Vec::with_capacity(64);
+        self.reserve(count);
+        for _ in 0..count {
+            sampler.sample(model.bounds(), rng, &mut x[..self.dim]);
+            self.add_state(model, &x[..self.dim], &mut rec)?;
+            touched.extend_from_slice(&rec);
+        }
+        Ok(())
+    }
+
+    fn push_state<M: SdeModel + ?Sized>(
+        &mut self,
+        model: &M,
+        x: &[f64],
+    ) -> Result<usize, ChainError> {
+        let d = self.dim;
+        if x.len() != d {
+            return Err(ChainError::State("wrong dimension"));
+        }
+        if x.iter().any(|v| !v.is_finite()) {
+            return Err(ChainError::State("non-finite coordinate"));
+        }
+        let dims = model.dims();
+        let k = dims.noise;
+        let mut f = [0.0; MAX_STATE];
+        let mut bigf = [0.0; MAX_STATE * MAX_NOISE];
+        model.drift(x, &self.cfg.control[..self.control_len], &mut f[..d]);
+        model.diffusion(x, &mut bigf[..d * k]);
+        let mut ff = [0.0; MAX_STATE * MAX_STATE];
+        for i in 0..d {
+            for j in 0..d {
+                ff[i + j * d] = (0..k).map(|c| bigf[i + c * d] * bigf[j + c * d]).sum();
+            }
+        }
+        if f[..d].iter().chain(&ff[..d * d]).any(|v| !v.is_finite()) {
+            return Err(ChainError::State(
+                "model drift or diffusion is not finite here",
+            ));
+        }
+        let mut l = ff;
+        let ok = cholesky(&mut l[..d * d], d);
+        if !ok && self.cfg.kernel == KernelKind::Gaussian {
+            return Err(ChainError::SingularDiffusion);
+        }
+        let slot = self.ids.len();
+        self.states.extend_from_slice(x);
+        self.ids.push(self.next_id);
+        self.next_id += 1;
+        self.holding.push(f64::INFINITY);
+        self.radius.push(0.0);
+        self.near_count.push(0);
+        self.drift.extend_from_slice(&f[..d]);
+        self.drift_norm
+            .push(f[..d].iter().map(|v| v * v).sum::<f64>().sqrt());
+        self.diff_norm.push(sym_spectral_norm(&ff[..d * d], d));
+        self.ff.extend_from_slice(&ff[..d * d]);
+        self.chol.extend_from_slice(&l[..d * d]);
+        self.chol_ok.push(ok);
+        self.trans.push_row();
+        Ok(slot)
+    }
+
+    /// Undo the last `push_state`.
+    fn pop_state(&mut self) {
+        let d = self.dim;
+        let n = self.ids.len() - 1;
+        self.states.truncate(n * d);
+        self.ids.truncate(n);
+        self.next_id -= 1;
+        self.holding.truncate(n);
+        self.radius.truncate(n);
+        self.near_count.truncate(n);
+        self.drift.truncate(n * d);
+        self.drift_norm.truncate(n);
+        self.diff_norm.truncate(n);
+        self.ff.truncate(n * d * d);
+        self.chol.truncate(n * d * d);
+        self.chol_ok.truncate(n);
+        self.trans.pop_row();
+    }
+
+    /// Neighbour count of the k-NN rule at size n.
+    pub fn knn_k(&self, n: usize) -> usize {
+        match self.cfg.near {
+            NearRule::Knn { c } => {
+                let k = (c * (n.max(2) as f64).ln()).ceil() as usize;
+                k.max(self.cfg.min_neighbours).min(n.saturating_sub(1))
+            }
+            NearRule::Radius { .. } => 0,
+        }
+    }
+
+    /// Radius of the radius rule at size n.
+    pub fn rule_radius(&self, n: usize) -> f64 {
+        match self.cfg.near {
+            NearRule::Radius { gamma } => {
+                let n = n.max(2) as f64;
+                gamma * (n.ln() / n).powf(1.0 / self.dim as f64)
+            }
+            NearRule::Knn { .. } => f64::NAN,
+        }
+    }
+
+    /// ConnectState (Alg. 2.2) for slot `i` with the current n. Leaves the
+    /// Near set in `self.neigh`.
+    fn connect(&mut self, i: usize) -> Result<(), ChainError> {
+        let d = self.dim;
+        let n = self.ids.len();
+        let x: [f64; MAX_INDEX_DIM] = {
+            let mut a = [0.0; MAX_INDEX_DIM];
+            a[..d].copy_from_slice(&self.states[i * d..(i + 1) * d]);
+            a
+        };
+        let x = &x[..d];
+        let r = match self.cfg.near {
+            NearRule::Knn { .. } => {
+                let k = self.knn_k(n);
+                self.index.nearest(x, k + 1, &mut self.neigh);
+                if let Some(pos) = self.neigh.iter().position(|e| e.0 as usize == i) {
+                    self.neigh.remove(pos);
+                } else {
+                    self.neigh.truncate(k);
+                }
+                self.neigh.iter().fold(0.0f64, |m, e| m.max(e.1)).sqrt()
+            }
+            NearRule::Radius { .. } => {
+                let r = self.rule_radius(n);
+                self.index.within(x, r, &mut self.neigh);
+                self.neigh.retain(|e| e.0 as usize != i);
+                if let Some(maxd) = self.cfg.max_degree {
+                    if self.neigh.len() > maxd {
+                        self.neigh
+                            .sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+                        self.neigh.truncate(maxd);
+                    }
+                }
+                r
+            }
+        };
+        self.stats.connects += 1;
+        self.radius[i] = r;
+        self.near_count[i] = self.neigh.len() as u32;
+        let (fnorm, dnorm) = (self.drift_norm[i], self.diff_norm[i]);
+        if self.neigh.is_empty() || !(r > 0.0) || (fnorm == 0.0 && dnorm == 0.0) {
+            // No neighbour, or no dynamics at z: absorbing.
+            self.neigh.clear();
+            self.holding[i] = f64::INFINITY;
+            self.trans.set_row(i, &[], &[]);
+            self.stats.absorbing += 1;
+            return Ok(());
+        }
+        let dt = holding_time(
+            r,
+            dnorm,
+            fnorm,
+            self.cfg.kappa_diffusion,
+            self.cfg.kappa_drift,
+        );
+        if self.cfg.kernel == KernelKind::MomentMatched && self.neigh.len() > MAX_LP_NEIGHBOURS {
+            self.neigh
+                .sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        }
+        let kk = match self.cfg.kernel {
+            KernelKind::MomentMatched => self.neigh.len().min(MAX_LP_NEIGHBOURS),
+            KernelKind::Gaussian => self.neigh.len(),
+        };
+        self.dz.clear();
+        self.cbuf.clear();
+        for &(j, _) in &self.neigh[..kk] {
+            let j = j as usize;
+            for c in 0..d {
+                self.dz.push(self.states[j * d + c] - x[c]);
+            }
+            self.cbuf.push(j as u32);
+        }
+        self.pbuf.clear();
+        self.pbuf.resize(kk, 0.0);
+        let dd = d * d;
+        let dynl = LocalDyn {
+            f: &self.drift[i * d..(i + 1) * d],
+            ff: &self.ff[i * dd..(i + 1) * dd],
+            chol: self.chol_ok[i].then(|| &self.chol[i * dd..(i + 1) * dd]),
+        };
+        let holding = match self.cfg.kernel {
+            KernelKind::Gaussian => {
+                if !gaussian(d, &self.dz, dt, &dynl, &mut self.work, &mut self.pbuf) {
+                    return Err(ChainError::SingularDiffusion);
+                }
+                self.stats.gaussian += 1;
+                dt
+            }
+            KernelKind::MomentMatched => {
+                let fit = moment_matched(d, &self.dz, dt, r, &dynl, &mut self.work, &mut self.pbuf);
+                match fit.outcome {
+                    KernelOutcome::Exact => self.stats.exact += 1,
+                    KernelOutcome::LeastSquares => self.stats.least_squares += 1,
+                    _ => self.stats.gaussian += 1,
+                }
+                fit.holding
+            }
+        };
+        // Drop negligible entries (p < 1e-12): they cost filter time, carry
+        // nothing, and products of them become subnormal floats, which are
+        // two orders of magnitude slower in the filter's mat-vec.
+        let mut w = 0;
+        let mut kept = 0.0;
+        for k in 0..kk {
+            if self.pbuf[k] >= MIN_PROB {
+                self.pbuf[w] = self.pbuf[k];
+                self.cbuf[w] = self.cbuf[k];
+                kept += self.pbuf[k];
+                w += 1;
+            }
+        }
+        for v in &mut self.pbuf[..w] {
+            *v /= kept;
+        }
+        self.holding[i] = holding;
+        self.trans.set_row(i, &self.cbuf[..w], &self.pbuf[..w]);
+        Ok(())
+    }
+
+    /// Import a snapshot (e.g. one received from another process); the
+    /// model supplies the caches needed to keep growing it.
+    pub fn from_view<M: SdeModel + ?Sized>(
+        model: &M,
+        cfg: ChainConfig,
+        view: &ChainView,
+    ) -> Result<Self, ChainError> {
+        view.validate()?;
+        let mut c = Self::new(model, cfg)?;
+        if view.dim != c.dim {
+            return Err(ChainError::Dimension(view.dim));
+        }
+        let n = view.len();
+        c.reserve(n);
+        for i in 0..n {
+            c.push_state(model, view.state(i))?;
+        }
+        c.ids.copy_from_slice(view.ids);
+        c.next_id = view.ids.iter().max().map_or(0, |m| m + 1);
+        c.holding.copy_from_slice(view.holding);
+        c.radius.copy_from_slice(view.radius);
+        for i in 0..n {
+            // Near-set sizes are not part of a snapshot; the row length is
+            // the best available proxy.
+            c.near_count[i] = view.row_offsets[i + 1] - view.row_offsets[i];
+        }
+        c.trans = super::storage::Transitions::from_csr(view.row_offsets, view.cols, view.probs);
+        c.index =
+            SpatialIndex::from_points(c.dim, view.states).ok_or(ChainError::Dimension(c.dim))?;
+        Ok(c)
+    }
+
+    /// The flat snapshot view (compacts the transition slab first).
+    pub fn view(&mut self) -> ChainView<'_> {
+        self.trans.compact();
+        let (row_offsets, cols, probs) = self.trans.csr().expect("compacted");
+        ChainView {
+            dim: self.dim,
+            states: &self.states,
+            ids: &self.ids,
+            holding: &self.holding,
+            radius: &self.radius,
+            row_offsets,
+            cols,
+            probs,
+        }
+    }
+
+    /// Make the transitions plain CSR (so [`Self::compact_view`] works).
+    pub fn compact(&mut self) {
+        self.trans.compact();
+    }
+
+    /// The snapshot view if the chain is compact (see [`Self::compact`]).
+    pub fn compact_view(&self) -> Option<ChainView<'_>> {
+        let (row_offsets, cols, probs) = self.trans.csr()?;
+        Some(ChainView {
+            dim: self.dim,
+            states: &self.states,
+            ids: &self.ids,
+            holding: &self.holding,
+            radius: &self.radius,
+            row_offsets,
+            cols,
+            probs,
+        })
+    }
+
+    /// Number of states n.
+    pub fn len(&self) -> usize {
+        self.ids.len()
+    }
+    /// Whether the chain has no state.
+    pub fn is_empty(&self) -> bool {
+        self.ids.is_empty()
+    }
+    /// State dimension d.
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+    /// Construction parameters.
+    pub fn config(&self) -> &ChainConfig {
+        &self.cfg
+    }
+    /// Work counters.
+    pub fn stats(&self) -> ChainStats {
+        self.stats
+    }
+    /// State of slot i.
+    pub fn state(&self, i: usize) -> &[f64] {
+        &self.states[i * self.dim..(i + 1) * self.dim]
+    }
+    /// All states, flat n × d.
+    pub fn states(&self) -> &[f64] {
+        &self.states
+    }
+    /// Stable ids by slot.
+    pub fn ids(&self) -> &[u32] {
+        &self.ids
+    }
+    /// Holding times by slot.
+    pub fn holding(&self) -> &[f64] {
+        &self.holding
+    }
+    /// Near radius used at the last connection, by slot.
+    pub fn radius(&self) -> &[f64] {
+        &self.radius
+    }
+    /// Size of the Near set at the last connection, by slot.
+    pub fn near_count(&self) -> &[u32] {
+        &self.near_count
+    }
+    /// Volume represented by slot i, the k-NN density estimate
+    /// r(z)^d / |Near(z)| (up to the unit-ball constant); used to turn
+    /// densities into masses on non-uniformly sampled states.
+    pub fn cell_volume(&self, i: usize) -> f64 {
+        let k = self.near_count[i].max(1) as f64;
+        self.radius[i].powi(self.dim as i32) / k
+    }
+    /// Transition row of slot i.
+    pub fn row(&self, i: usize) -> (&[u32], &[f64]) {
+        self.trans.row(i)
+    }
+    /// Number of transitions.
+    pub fn nnz(&self) -> usize {
+        self.trans.nnz()
+    }
+    /// Mean out-degree nnz / n.
+    pub fn mean_out_degree(&self) -> f64 {
+        self.nnz() as f64 / self.len().max(1) as f64
+    }
+    /// Cached f(z) at slot i (under the reference control).
+    pub fn drift_at(&self, i: usize) -> &[f64] {
+        &self.drift[i * self.dim..(i + 1) * self.dim]
+    }
+    /// Cached F Fᵀ(z) at slot i.
+    pub fn diffusion_at(&self, i: usize) -> &[f64] {
+        let dd = self.dim * self.dim;
+        &self.ff[i * dd..(i + 1) * dd]
+    }
+    /// Cached Cholesky factor of F Fᵀ(z) at slot i, if positive definite.
+    pub fn chol_at(&self, i: usize) -> Option<&[f64]> {
+        let dd = self.dim * self.dim;
+        self.chol_ok[i].then(|| &self.chol[i * dd..(i + 1) * dd])
+    }
+    /// The reference control u₀ the chain was built for.
+    pub fn reference_control(&self) -> &[f64] {
+        &self.cfg.control[..self.control_len]
+    }
+    /// The k nearest states to `x` (slot, squared distance), into `out`.
+    pub fn nearest(&self, x: &[f64], k: usize, out: &mut Vec<(u32, f64)>) {
+        self.index.nearest(x, k, out);
+    }
+    /// Approximate bytes held by states, ids, holding times and transitions.
+    pub fn bytes(&self) -> usize {
+        self.states.capacity() * 8
+            + self.ids.capacity() * 4
+            + self.holding.capacity() * 8
+            + self.radius.capacity() * 8
+            + self.trans.bytes()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::chain::sample::Sampler;
+    use crate::model::linear::LinearSde;
+    use crate::model::Bounds;
+    use nalgebra::DMatrix;
+
+    pub(crate) fn ou2(a1: f64, a2: f64, s: f64, half: f64) -> LinearSde {
+        LinearSde::new(
+            "ou2",
+            DMatrix::from_row_slice(2, 2, &[-a1, 0.0, 0.0, -a2]),
+            DMatrix::zeros(2, 0),
+            DMatrix::from_row_slice(2, 2, &[s, 0.0, 0.0, s]),
+            DMatrix::identity(2, 2),
+            vec![0.1, 0.1],
+            Bounds::new_box(&[-half, -half], &[half, half]).unwrap(),
+        )
+    }
+
+    #[test]
+    fn incremental_and_batch_rows_are_distributions_and_views_round_trip() {
+        let m = ou2(0.5, 1.0, 0.3, 1.0);
+        let mut rng = crate::rng::stream(1, 0);
+        for cfg in [
+            ChainConfig::gaussian(2),
+            ChainConfig::moment_matched(2),
+            ChainConfig::gaussian(2).with_near(NearRule::Radius { gamma: 1.5 }),
+        ] {
+            let mut c = Chain::new(&m, cfg.clone()).unwrap();
+            let mut touched = vec![];
+            c.grow(&m, &Sampler::Uniform, 400, &mut rng, &mut touched)
+                .unwrap();
+            assert_eq!(c.len(), 400);
+            assert!(touched.len() > 400);
+            let view = c.view();
+            view.validate().unwrap();
+            // ids stable and unique
+            assert!(view.ids.windows(2).all(|w| w[0] < w[1]));
+            let c2 = Chain::from_view(&m, cfg.clone(), &view).unwrap();
+            assert_eq!(c2.len(), 400);
+            assert_eq!(c2.row(17), c.row(17));
+            let pts = Sampler::Uniform.sample_many(m.bounds(), 300, &mut rng);
+            let mut b = Chain::batch(&m, cfg, &pts).unwrap();
+            b.view().validate().unwrap();
+            // batch with k-NN: out-degree = k(n) unless zero-probability
+            // entries were dropped.
+            assert!(b.mean_out_degree() > 3.0);
+        }
+    }
+
+    #[test]
+    fn reconnection_shrinks_holding_times() {
+        // Alg. 2.3: a state's Δt is recomputed with the current n whenever a
+        // new sample lands near it, so Δt of the first states decreases.
+        let m = ou2(0.5, 1.0, 0.3, 1.0);
+        let mut rng = crate::rng::stream(4, 0);
+        let mut c = Chain::new(&m, ChainConfig::gaussian(2)).unwrap();
+        let mut t = vec![];
+        c.grow(&m, &Sampler::Uniform, 50, &mut rng, &mut t).unwrap();
+        let early: f64 = c.holding()[..10].iter().sum();
+        c.grow(&m, &Sampler::Uniform, 5000, &mut rng, &mut t)
+            .unwrap();
+        let late: f64 = c.holding()[..10].iter().sum();
+        assert!(late < 0.3 * early, "{late} vs {early}");
+    }
+}

@@ -1,0 +1,370 @@
+//! Holding time and transition kernels of `ConnectState` (thesis §2.4.1,
+//! Alg. 2.2; paper 001 §IV-A).
+//!
+//! Holding time (thesis: κ_F = κ_f = 1):
+//! ```text
+//! Δt(z) = r² / (κ_F ‖F Fᵀ(z)‖₂ + κ_f r ‖f(z)‖₂)
+//! ```
+//!
+//! **Gaussian kernel** (thesis, Lemma 2.3): over the neighbours z_k of z,
+//! ```text
+//! p(z_k | z) ∝ exp(−½ (z_k − z − fΔt)ᵀ (F Fᵀ Δt)⁻¹ (z_k − z − fΔt)),   Σ_k p = 1
+//! ```
+//!
+//! **Moment-matching ("LP") kernel** (thesis §2.4.1, "local consistency
+//! conditions translate into a linear program"; no objective or tolerance
+//! given there). Unknowns p₀ (stay at z) and p_k ≥ 0 with
+//! ```text
+//! Σ p = 1,   Σ p_k Δz_k = f Δt,   Σ p_k Δz_k Δz_kᵀ = F Fᵀ Δt + f fᵀ Δt²   (upper triangle)
+//! ```
+//! i.e. eq. (2.6)–(2.7) met exactly over one step of length Δt. Choices made
+//! here where the thesis is silent:
+//! - the self-loop p₀ is an unknown. It makes small Δt always admissible, and
+//!   the chain without self-loop is recovered exactly: holding time
+//!   Δt/(1 − p₀), jump probabilities p_k/(1 − p₀) (the time-equalisation of
+//!   eq. 3.8–3.9 read backwards);
+//! - among feasible kernels we take the one closest (Euclidean) to the
+//!   Gaussian kernel, found by projection with clamping ([`MinChange`]);
+//!   when that heuristic fails, Lawson–Hanson NNLS decides feasibility and,
+//!   if infeasible (drift-dominated states whose neighbours do not surround
+//!   the required jump, boundary states), returns the least-violating kernel
+//!   with the mean rows weighted ×[`MEAN_ROW_WEIGHT`] so drift is matched
+//!   first and the residual becomes extra ("numerical") diffusion;
+//! - rows are scaled by r and r² so the equations are O(1);
+//! - at most [`MAX_LP_NEIGHBOURS`] nearest neighbours enter the program.
+//!
+//! Erratum found while implementing: with the thesis's Δt the Gaussian
+//! kernel's standard deviation √(σ²Δt) equals r (σ² ≫ r‖f‖), i.e. the kernel
+//! is truncated at one σ by the Near ball, and its covariance falls short of
+//! F FᵀΔt by a factor that does not vanish as n → ∞ (≈ 0.23 in 2-D). Lemma
+//! 2.3 holds only when the kernel is much narrower than r. The local-
+//! consistency diagnostics report this; the moment-matching kernel meets
+//! (2.7) exactly wherever it is feasible.
+
+use super::nnls::{MinChange, Nnls, MAX_COLS, MAX_ROWS};
+
+/// Largest neighbour count entering the moment-matching program.
+pub const MAX_LP_NEIGHBOURS: usize = MAX_COLS - 1;
+/// Weight of the mean rows relative to the second-moment rows in NNLS.
+pub const MEAN_ROW_WEIGHT: f64 = 4.0;
+/// Weight of the Σ p = 1 row in NNLS.
+const SUM_ROW_WEIGHT: f64 = 100.0;
+/// Feasibility tolerance on the scaled equations.
+const FEAS_TOL: f64 = 1e-9;
+
+/// The transition kernel used by `ConnectState`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum KernelKind {
+    /// The thesis's normalised Gaussian over Near.
+    Gaussian,
+    /// Moment matching (the thesis's LP): exact local consistency where
+    /// feasible.
+    MomentMatched,
+}
+
+/// How a kernel row came out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KernelOutcome {
+    /// Gaussian weights.
+    Gaussian,
+    /// Moment equations met exactly (to 1e-9 in scaled units).
+    Exact,
+    /// Infeasible: least-violating moment fit.
+    LeastSquares,
+    /// No neighbours: the state is absorbing (infinite holding time).
+    Absorbing,
+}
+
+/// Δt(z) = r² / (κ_F ‖FFᵀ‖₂ + κ_f r ‖f‖₂).
+pub fn holding_time(r: f64, diff_norm: f64, drift_norm: f64, kappa_f: f64, kappa_d: f64) -> f64 {
+    r * r / (kappa_f * diff_norm + kappa_d * r * drift_norm)
+}
+
+/// Local dynamics of a state, cached by the chain.
+#[derive(Clone, Copy, Debug)]
+pub struct LocalDyn<'a> {
+    /// f(z), length d.
+    pub f: &'a [f64],
+    /// F Fᵀ(z), d × d column-major.
+    pub ff: &'a [f64],
+    /// Cholesky factor of F Fᵀ(z) (lower), d × d; None if singular.
+    pub chol: Option<&'a [f64]>,
+}
+
+/// Reusable buffers for the kernels.
+#[derive(Clone, Debug, Default)]
+pub struct KernelWork {
+    logw: Vec<f64>,
+    a: Vec<f64>,
+    b: Vec<f64>,
+    prior: Vec<f64>,
+    x: Vec<f64>,
+    nnls: Nnls,
+    minc: MinChange,
+}
+
+impl KernelWork {
+    pub fn new() -> Self {
+        Self {
+            logw: Vec::with_capacity(256),
+            a: vec![0.0; MAX_ROWS * MAX_COLS],
+            b: vec![0.0; MAX_ROWS],
+            prior: vec![0.0; MAX_COLS],
+            x: vec![0.0; MAX_COLS],
+            nnls: Nnls::new(),
+            minc: MinChange::new(),
+        }
+    }
+}
+
+/// Gaussian weights N(Δz_k; fΔt, FFᵀΔt) normalised over the K neighbours,
+/// `dz` flat K × d, into `p` (length K). Requires `dynl.chol`.
+pub fn gaussian(
+    d: usize,
+    dz: &[f64],
+    dt: f64,
+    dynl: &LocalDyn,
+    work: &mut KernelWork,
+    p: &mut [f64],
+) -> bool {
+    let Some(l) = dynl.chol else {
+        return false;
+    };
+    let k = dz.len() / d;
+    work.logw.clear();
+    let inv_dt = 1.0 / dt;
+    let mut qmin = f64::INFINITY;
+    let mut y = [0.0f64; 16];
+    for j in 0..k {
+        for i in 0..d {
+            y[i] = dz[j * d + i] - dynl.f[i] * dt;
+        }
+        // q = yᵀ (LLᵀ)⁻¹ y / Δt = |L⁻¹ y|² / Δt
+        let mut q = 0.0;
+        for i in 0..d {
+            let mut s = y[i];
+            for c in 0..i {
+                s -= l[i + c * d] * y[c];
+            }
+            let v = s / l[i + i * d];
+            y[i] = v;
+            q += v * v;
+        }
+        let q = 0.5 * q * inv_dt;
+        qmin = qmin.min(q);
+        work.logw.push(q);
+    }
+    let mut sum = 0.0;
+    for j in 0..k {
+        let w = (qmin - work.logw[j]).exp();
+        p[j] = w;
+        sum += w;
+    }
+    let inv = 1.0 / sum;
+    for v in p[..k].iter_mut() {
+        *v *= inv;
+    }
+    true
+}
+
+/// Result of the moment-matching kernel.
+#[derive(Clone, Copy, Debug)]
+pub struct MomentFit {
+    pub outcome: KernelOutcome,
+    /// Holding time of the chain without self-loop, Δt/(1 − p₀).
+    pub holding: f64,
+}
+
+/// The moment-matching kernel for `K = dz.len()/d ≤ MAX_LP_NEIGHBOURS`
+/// neighbours at displacements `dz` (flat K × d), step `dt`, neighbourhood
+/// scale `r`. Writes jump probabilities p_k/(1 − p₀) into `p` (length K).
+pub fn moment_matched(
+    d: usize,
+    dz: &[f64],
+    dt: f64,
+    r: f64,
+    dynl: &LocalDyn,
+    work: &mut KernelWork,
+    p: &mut [f64],
+) -> MomentFit {
+    let k = dz.len() / d;
+    debug_assert!(k <= MAX_LP_NEIGHBOURS);
+    let nsec = d * (d + 1) / 2;
+    let m = 1 + d + nsec;
+    let cols = k + 1;
+    let inv_r = 1.0 / r;
+    let inv_r2 = inv_r * inv_r;
+    // Prior: Gaussian weights if available, else uniform, for the jumps;
+    // the self-loop prior is 0.
+    work.prior[0] = 0.0;
+    if !gaussian(d, dz, dt, dynl, work, &mut p[..k]) {
+        p[..k].fill(1.0 / k as f64);
+    }
+    work.prior[1..cols].copy_from_slice(&p[..k]);
+    // Column 0: stay (Δz = 0).
+    let a = &mut work.a[..m * cols];
+    a.fill(0.0);
+    a[0] = 1.0;
+    for j in 0..k {
+        let col = (j + 1) * m;
+        a[col] = 1.0;
+        let z = &dz[j * d..(j + 1) * d];
+        for i in 0..d {
+            a[col + 1 + i] = z[i] * inv_r;
+        }
+        let mut row = 1 + d;
+        for i in 0..d {
+            for c in i..d {
+                a[col + row] = z[i] * z[c] * inv_r2;
+                row += 1;
+            }
+        }
+    }
+    let b = &mut work.b[..m];
+    b[0] = 1.0;
+    for i in 0..d {
+        b[1 + i] = dynl.f[i] * dt * inv_r;
+    }
+    let mut row = 1 + d;
+    for i in 0..d {
+        for c in i..d {
+            b[row] = (dynl.ff[i + c * d] * dt + dynl.f[i] * dynl.f[c] * dt * dt) * inv_r2;
+            row += 1;
+        }
+    }
+    let x = &mut work.x[..cols];
+    let mut outcome = if work
+        .minc
+        .solve(a, m, cols, b, &work.prior[..cols], x, FEAS_TOL, 6)
+    {
+        KernelOutcome::Exact
+    } else {
+        KernelOutcome::LeastSquares
+    };
+    if outcome == KernelOutcome::LeastSquares {
+        // Weighted NNLS: decides feasibility, else least violation.
+        for j in 0..cols {
+            a[j * m] *= SUM_ROW_WEIGHT;
+            for i in 0..d {
+                a[j * m + 1 + i] *= MEAN_ROW_WEIGHT;
+            }
+        }
+        b[0] *= SUM_ROW_WEIGHT;
+        for i in 0..d {
+            b[1 + i] *= MEAN_ROW_WEIGHT;
+        }
+        let res = work.nnls.solve(a, m, cols, b, x);
+        if res <= FEAS_TOL {
+            outcome = KernelOutcome::Exact;
+        }
+    }
+    let total: f64 = x.iter().sum();
+    let jump: f64 = x[1..].iter().sum();
+    if !(jump > 1e-12 * total) || !total.is_finite() {
+        // Degenerate fit (all mass on the self-loop): fall back to Gaussian.
+        if !gaussian(d, dz, dt, dynl, work, &mut p[..k]) {
+            p[..k].fill(1.0 / k as f64);
+        }
+        return MomentFit {
+            outcome: KernelOutcome::Gaussian,
+            holding: dt,
+        };
+    }
+    for j in 0..k {
+        p[j] = x[j + 1] / jump;
+    }
+    MomentFit {
+        outcome,
+        holding: dt * total / jump,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::chain::linalg::cholesky;
+    use crate::rng::stream;
+    use rand::RngExt;
+
+    fn moments(d: usize, dz: &[f64], p: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let k = p.len();
+        let mut m1 = vec![0.0; d];
+        let mut m2 = vec![0.0; d * d];
+        for j in 0..k {
+            for i in 0..d {
+                m1[i] += p[j] * dz[j * d + i];
+                for c in 0..d {
+                    m2[i + c * d] += p[j] * dz[j * d + i] * dz[j * d + c];
+                }
+            }
+        }
+        (m1, m2)
+    }
+
+    #[test]
+    fn moment_matched_meets_local_consistency_exactly_when_surrounded() {
+        // 2-D, 20 neighbours uniformly in the unit disc around z, diffusion-
+        // dominated: the kernel's mean/second moment per unit holding time
+        // equal f and FFᵀ + ffᵀΔt.
+        let mut rng = stream(9, 0);
+        let d = 2;
+        let mut dz = vec![];
+        while dz.len() < 40 {
+            let (x, y) = (rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+            if x * x + y * y <= 1.0 {
+                dz.push(x);
+                dz.push(y);
+            }
+        }
+        let f = [0.3, -0.2];
+        let ff = [0.5, 0.1, 0.1, 0.4];
+        let mut chol = ff;
+        assert!(cholesky(&mut chol, 2));
+        let dynl = LocalDyn {
+            f: &f,
+            ff: &ff,
+            chol: Some(&chol),
+        };
+        let dt = holding_time(1.0, 0.55, 0.36, 2.0 * (d as f64 + 2.0), 2.0);
+        let mut work = KernelWork::new();
+        let mut p = vec![0.0; 20];
+        let fit = moment_matched(d, &dz, dt, 1.0, &dynl, &mut work, &mut p);
+        assert_eq!(fit.outcome, KernelOutcome::Exact);
+        assert!((p.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!(p.iter().all(|v| *v >= 0.0));
+        let h = fit.holding;
+        let (m1, m2) = moments(d, &dz, &p);
+        for i in 0..d {
+            assert!((m1[i] / h - f[i]).abs() < 1e-8, "drift {i}");
+            for c in 0..d {
+                let want = ff[i + c * d] + f[i] * f[c] * dt;
+                assert!((m2[i + c * d] / h - want).abs() < 1e-8, "second moment");
+            }
+        }
+    }
+
+    #[test]
+    fn gaussian_kernel_is_normalised_and_peaks_at_the_drift_target() {
+        let d = 1;
+        let dz = [-0.5, -0.1, 0.2, 0.45, 0.9];
+        let f = [2.0];
+        let ff = [0.04];
+        let chol = [0.2];
+        let dynl = LocalDyn {
+            f: &f,
+            ff: &ff,
+            chol: Some(&chol),
+        };
+        let mut p = [0.0; 5];
+        let mut work = KernelWork::new();
+        assert!(gaussian(d, &dz, 0.2, &dynl, &mut work, &mut p));
+        assert!((p.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        // target z + fΔt = 0.4: the neighbour at 0.45 has the largest weight.
+        let best = (0..5).max_by(|a, b| p[*a].total_cmp(&p[*b])).unwrap();
+        assert_eq!(best, 3);
+        // ratio check against the closed form
+        let w = |x: f64| (-(x - 0.4f64).powi(2) / (2.0 * 0.04 * 0.2)).exp();
+        assert!((p[2] / p[3] - w(0.2) / w(0.45)).abs() < 1e-9);
+    }
+}

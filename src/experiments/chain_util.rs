@@ -1,0 +1,346 @@
+//! Helpers shared by the Markov-chain experiments (issue 3): typed
+//! `--param` parsing that records every value in the report, truth and
+//! observation simulation, and running a filter over a record.
+
+use std::time::Instant;
+
+use anyhow::{bail, Result};
+
+use super::{ExperimentArgs, ExperimentReport};
+use crate::belief::Gaussian;
+use crate::filter::BayesFilter;
+use crate::model::discrete::em_integrate;
+use crate::model::{simulate_observation, Measurement, SdeModel};
+use crate::rng::SimRng;
+
+/// `--param` values with defaults; every value read is recorded in the
+/// report's params, and unknown keys are an error.
+pub struct Params<'a> {
+    args: &'a ExperimentArgs,
+    used: Vec<String>,
+}
+
+impl<'a> Params<'a> {
+    pub fn new(args: &'a ExperimentArgs) -> Self {
+        Self { args, used: vec![] }
+    }
+
+    fn raw(&mut self, key: &str) -> Option<&'a str> {
+        self.used.push(key.to_string());
+        self.args
+            .params
+            .iter()
+            .rev()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.as_str())
+    }
+
+    /// A float parameter.
+    pub fn f64(&mut self, rep: &mut ExperimentReport, key: &str, default: f64) -> Result<f64> {
+        let v = match self.raw(key) {
+            Some(s) => s
+                .parse::<f64>()
+                .map_err(|_| anyhow::anyhow!("--param {key}={s}: not a number"))?,
+            None => default,
+        };
+        if !v.is_finite() {
+            bail!("--param {key}: must be finite");
+        }
+        rep.param(key, v);
+        Ok(v)
+    }
+
+    /// An integer parameter.
+    pub fn usize(
+        &mut self,
+        rep: &mut ExperimentReport,
+        key: &str,
+        default: usize,
+    ) -> Result<usize> {
+        let v = match self.raw(key) {
+            Some(s) => s
+                .parse::<usize>()
+                .map_err(|_| anyhow::anyhow!("--param {key}={s}: not a non-negative integer"))?,
+            None => default,
+        };
+        rep.param(key, v);
+        Ok(v)
+    }
+
+    /// A comma-separated list of integers.
+    pub fn list(
+        &mut self,
+        rep: &mut ExperimentReport,
+        key: &str,
+        default: &[usize],
+    ) -> Result<Vec<usize>> {
+        let v = match self.raw(key) {
+            Some(s) => s
+                .split(',')
+                .map(|x| x.trim().parse::<usize>())
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(|_| anyhow::anyhow!("--param {key}={s}: not a list of integers"))?,
+            None => default.to_vec(),
+        };
+        if v.is_empty() {
+            bail!("--param {key}: empty list");
+        }
+        rep.param(key, serde_json::json!(v));
+        Ok(v)
+    }
+
+    /// A string choice among `allowed`.
+    pub fn choice(
+        &mut self,
+        rep: &mut ExperimentReport,
+        key: &str,
+        default: &str,
+        allowed: &[&str],
+    ) -> Result<String> {
+        let v = self.raw(key).unwrap_or(default).to_string();
+        if !allowed.contains(&v.as_str()) {
+            bail!("--param {key}={v}: expected one of {allowed:?}");
+        }
+        rep.param(key, v.clone());
+        Ok(v)
+    }
+
+    /// Fail on keys that were never read.
+    pub fn finish(self) -> Result<()> {
+        for (k, _) in &self.args.params {
+            if !self.used.contains(k) {
+                bail!("unknown --param '{k}' (known: {})", self.used.join(", "));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A simulated run: truth and sampled measurements at t_k = kΔ, k = 1..K.
+pub struct Record {
+    pub times: Vec<f64>,
+    /// Truth at t₀ = 0 and at every t_k, (K + 1) × d.
+    pub truth: Vec<f64>,
+    /// Measurements, K × m.
+    pub ys: Vec<f64>,
+}
+
+/// Simulate `steps` observation periods of `dt` from `x0` (Euler–Maruyama
+/// with substeps ≤ `max_dt`, no control), drawing a measurement after each.
+pub fn simulate<M: SdeModel>(
+    model: &M,
+    x0: &[f64],
+    dt: f64,
+    steps: usize,
+    max_dt: f64,
+    rng: &mut SimRng,
+) -> Record {
+    let dims = model.dims();
+    let (d, m) = (dims.state, dims.obs);
+    let u = vec![0.0; dims.control];
+    let mut x = x0.to_vec();
+    let mut rec = Record {
+        times: Vec::with_capacity(steps),
+        truth: Vec::with_capacity((steps + 1) * d),
+        ys: Vec::with_capacity(steps * m),
+    };
+    rec.truth.extend_from_slice(&x);
+    let mut y = vec![0.0; m];
+    for k in 1..=steps {
+        em_integrate(model, &mut x, &u, dt, max_dt, rng);
+        model.bounds().project(&mut x);
+        simulate_observation(model, &x, rng, &mut y);
+        rec.times.push(k as f64 * dt);
+        rec.truth.extend_from_slice(&x);
+        rec.ys.extend_from_slice(&y);
+    }
+    rec
+}
+
+/// Draw x ~ N(prior) restricted to S (rejection, then projection).
+pub fn draw_from<M: SdeModel>(model: &M, prior: &Gaussian, rng: &mut SimRng) -> Vec<f64> {
+    let d = prior.dim;
+    let s = crate::chain::Sampler::around(prior, 1.0, 0.0).expect("positive-definite prior");
+    let mut x = vec![0.0; d];
+    s.sample(model.bounds(), rng, &mut x);
+    x
+}
+
+/// Result of running a filter over a record.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RunResult {
+    /// (1/T) Σ_k ‖x_k − x̂_k‖ Δ (time-average estimation error).
+    pub mean_error: f64,
+    /// Root mean square of ‖x_k − x̂_k‖.
+    pub rmse: f64,
+    /// Wall-clock seconds of predict + update + belief.
+    pub time_s: f64,
+    /// Whether the estimate became non-finite or left 10× the set S.
+    pub diverged: bool,
+}
+
+/// Run `f` (already reset at t = 0) over `rec`. `dims_err` restricts the
+/// error to the first components (all when None).
+pub fn run_filter(f: &mut dyn BayesFilter, rec: &Record, dims_err: Option<usize>) -> RunResult {
+    let d = f.dims().state;
+    let de = dims_err.unwrap_or(d);
+    let m = f.dims().obs;
+    let u = vec![0.0; f.dims().control];
+    let mut err_sum = 0.0;
+    let mut sq_sum = 0.0;
+    let mut diverged = false;
+    let t0 = Instant::now();
+    for (k, &t) in rec.times.iter().enumerate() {
+        let y = &rec.ys[k * m..(k + 1) * m];
+        if f.predict(t, &u).is_err() {
+            diverged = true;
+        }
+        let _ = f.update(&Measurement::full(y));
+        let b = f.belief();
+        let x = &rec.truth[(k + 1) * d..(k + 2) * d];
+        let e2: f64 = (0..de).map(|i| (b.mean[i] - x[i]).powi(2)).sum();
+        if !e2.is_finite() || e2 > 1e8 {
+            diverged = true;
+        }
+        err_sum += e2.sqrt();
+        sq_sum += e2;
+    }
+    let k = rec.times.len().max(1) as f64;
+    RunResult {
+        mean_error: err_sum / k,
+        rmse: (sq_sum / k).sqrt(),
+        time_s: t0.elapsed().as_secs_f64(),
+        diverged,
+    }
+}
+
+/// Mean and standard error of a sample.
+pub fn mean_se(v: &[f64]) -> (f64, f64) {
+    let n = v.len().max(1) as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+    (m, (var / n).sqrt())
+}
+
+/// Median of a sample.
+pub fn median(v: &[f64]) -> f64 {
+    let mut w = v.to_vec();
+    w.sort_by(f64::total_cmp);
+    if w.is_empty() {
+        f64::NAN
+    } else {
+        w[w.len() / 2]
+    }
+}
+
+/// States concentrated where the prior predictive puts mass (thesis §3.3.3:
+/// "the mean and variance of the prior ... propagated ... used to
+/// concentrate samples"; here the propagation is by simulation, so it
+/// follows nonlinear flows such as a limit cycle): `n` points, each with
+/// probability `uniform_fraction` uniform on S, otherwise the state at a
+/// uniform random time in [0, `horizon`] of a trajectory started from the
+/// prior (trajectories of `horizon / 20` are reused for 20 points each).
+/// Data-free, so a chain built on them can serve every run.
+pub fn predictive_points<M: SdeModel>(
+    model: &M,
+    prior: &Gaussian,
+    horizon: f64,
+    n: usize,
+    uniform_fraction: f64,
+    max_dt: f64,
+    rng: &mut SimRng,
+) -> Vec<f64> {
+    use rand::RngExt;
+    let d = prior.dim;
+    let u = vec![0.0; model.dims().control];
+    let mut out = Vec::with_capacity(n * d);
+    let mut x = vec![0.0; d];
+    let mut left = 0usize;
+    let seg = horizon / 20.0;
+    while out.len() < n * d {
+        if rng.random::<f64>() < uniform_fraction {
+            model.bounds().sample_uniform(rng, &mut x);
+            out.extend_from_slice(&x);
+            continue;
+        }
+        if left == 0 {
+            // restart a trajectory from the prior at a random time
+            x = draw_from(model, prior, rng);
+            let t0 = rng.random_range(0.0..horizon);
+            em_integrate(model, &mut x, &u, t0, max_dt, rng);
+            model.bounds().project(&mut x);
+            left = 20;
+        }
+        em_integrate(model, &mut x, &u, seg * rng.random::<f64>(), max_dt, rng);
+        model.bounds().project(&mut x);
+        out.extend_from_slice(&x);
+        left -= 1;
+    }
+    out
+}
+
+/// Run the chain filter `cf`, a bootstrap PF (`pf_cfg`, reseeded per run),
+/// the EKF and the UKF over `runs` simulated records of `steps` periods of
+/// `dt` from x₀ ~ prior; returns per-method results in that order.
+#[allow(clippy::type_complexity)]
+pub fn compare_filters<M>(
+    model: &M,
+    prior: &Gaussian,
+    cf: &mut crate::filter::chain_filter::ChainFilter<M>,
+    pf_cfg: &crate::filter::pf::PfConfig,
+    runs: usize,
+    seed: u64,
+    dt: f64,
+    steps: usize,
+    bar: &mut super::Progress,
+) -> Result<Vec<(&'static str, Vec<RunResult>)>>
+where
+    M: crate::model::SdeJacobians + Clone + 'static,
+{
+    use crate::filter::ekf::{Ekf, EkfConfig};
+    use crate::filter::pf::Pf;
+    use crate::filter::ukf::{Ukf, UkfConfig};
+    let mut out: Vec<(&'static str, Vec<RunResult>)> = vec![
+        ("chain", vec![]),
+        ("pf", vec![]),
+        ("ekf", vec![]),
+        ("ukf", vec![]),
+    ];
+    for r in 0..runs {
+        let mut rng = crate::rng::stream(seed, r as u64);
+        let x0 = draw_from(model, prior, &mut rng);
+        let rec = simulate(model, &x0, dt, steps, 1e-3, &mut rng);
+        cf.reset(0.0, prior);
+        out[0].1.push(run_filter(cf, &rec, None));
+        let cfg = crate::filter::pf::PfConfig {
+            seed: seed.wrapping_mul(1000).wrapping_add(r as u64),
+            ..pf_cfg.clone()
+        };
+        let mut pf = Pf::new(model.clone(), &cfg, prior, 0.0)?;
+        out[1].1.push(run_filter(&mut pf, &rec, None));
+        let mut ekf = Ekf::new(model.clone(), &EkfConfig { max_dt: dt }, prior, 0.0)?;
+        out[2].1.push(run_filter(&mut ekf, &rec, None));
+        let mut ukf = Ukf::new(model.clone(), &UkfConfig::default(), prior, 0.0)?;
+        out[3].1.push(run_filter(&mut ukf, &rec, None));
+        bar.tick();
+    }
+    Ok(out)
+}
+
+/// One table row from per-run results: mean error over non-diverged runs,
+/// its standard error, median, mean time, diverged count.
+pub fn result_row(name: &str, v: &[RunResult]) -> super::Row {
+    let ok: Vec<f64> = v
+        .iter()
+        .filter(|r| !r.diverged)
+        .map(|r| r.mean_error)
+        .collect();
+    let (m, se) = mean_se(&ok);
+    let (t, _) = mean_se(&v.iter().map(|r| r.time_s).collect::<Vec<_>>());
+    super::Row::new(name)
+        .num("mean_error", m)
+        .num("stderr", se)
+        .num("median_error", median(&ok))
+        .num("time_s", t)
+        .int("diverged", (v.len() - ok.len()) as u64)
+}

@@ -1,0 +1,342 @@
+//! Jitter of the running pipeline (issue 6, item 2b): `beliefbus run` is
+//! started as a child process on a config, and a monitor of our own reads
+//! its `control` stream on a separate, polling subscriber (no listener, so
+//! the control stage pays nothing for it). Every figure comes from stamps
+//! the messages carry, so the monitor's own polling delay does not enter:
+//! - **control period jitter** `|(t_pub,k − t_pub,k−1) − T|` of consecutive
+//!   controls (T = 1 / sensor rate); a control period that passes without
+//!   a control is a deadline miss (`round(Δ/T) − 1` of them per gap);
+//! - **end-to-end latency** `t_control_out − t_sensor_pub` of each control
+//!   (the trace), against the end-to-end budget = the sum of the ingest,
+//!   filter and control budgets of the config: above it is a deadline miss;
+//! - **sensor period jitter** of the plant's publishes (consecutive sensor
+//!   sequence numbers in the traces) and its `sensor->ingest` latency.
+//!
+//! The first `run.warmup_s` seconds of controls are left out (as the run
+//! report does); the monitor then measures for the requested duration and
+//! closes its port a second before the run ends, so the launcher's cleanup
+//! finds no live node of ours in the prefix. The run's stage statistics
+//! (per-stage budgets, compute percentiles, deadline misses) come from its
+//! report.
+
+use super::stats::PctBlock;
+use super::LatencyError;
+use crate::ipc::{cleanup, Bus, BusConfig, Control, Hop};
+use crate::pipeline::config;
+use crate::rt::clock::now_ns;
+use crate::rt::LatencyHist;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+/// How to run the pipeline.
+#[derive(Clone, Debug)]
+pub struct PipelineJitterConfig {
+    /// The `beliefbus` executable (its `run` subcommand is used).
+    pub exe: PathBuf,
+    pub config: PathBuf,
+    pub sets: Vec<String>,
+    /// Measured time after the warm-up.
+    pub duration: Duration,
+}
+
+/// One stage's figures, from the run report.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StageFigures {
+    pub processed: u64,
+    pub deadline_misses: u64,
+    pub budget_us: Option<f64>,
+    pub compute_p50_us: Option<f64>,
+    pub compute_p99_us: Option<f64>,
+    /// Messages finished after release + budget, and the lateness p99
+    /// (response − budget; negative: early).
+    pub late: u64,
+    pub lateness_p99_us: Option<f64>,
+}
+
+/// What the monitor measured.
+#[derive(Debug)]
+pub struct PipelineJitter {
+    pub sensor_rate_hz: f64,
+    /// Controls seen in the measured window.
+    pub controls: u64,
+    pub control_period_jitter: LatencyHist,
+    pub control_period_misses: u64,
+    pub sensor_to_control: LatencyHist,
+    /// Sum of the ingest, filter and control budgets, ns (0: no budget).
+    pub e2e_budget_ns: u64,
+    pub e2e_misses: u64,
+    pub sensor_period_jitter: LatencyHist,
+    pub sensor_to_ingest: LatencyHist,
+    /// Per stage (`ingest`, `filter`, `control`, `refine`, `plant`).
+    pub stages: Vec<(String, StageFigures)>,
+    /// `hops` of the run report (percentile blocks in µs).
+    pub report_hops: serde_json::Value,
+    /// Shared-memory files of the run left after it ended.
+    pub shm_left: usize,
+    pub stopped: bool,
+}
+
+fn err(m: impl Into<String>) -> LatencyError {
+    LatencyError::Protocol(m.into())
+}
+
+/// Kills (SIGINT, then SIGKILL) and reaps the run if still alive on drop.
+struct RunChild(Option<Child>);
+
+impl RunChild {
+    fn wait(&mut self, limit: Duration, interrupt: bool) -> Option<std::process::ExitStatus> {
+        let c = self.0.as_mut()?;
+        if interrupt {
+            // SAFETY: signalling our own child.
+            unsafe { libc::kill(c.id() as libc::pid_t, libc::SIGINT) };
+        }
+        let t = Instant::now();
+        loop {
+            if let Ok(Some(s)) = c.try_wait() {
+                self.0 = None;
+                return Some(s);
+            }
+            if t.elapsed() > limit {
+                let _ = c.kill();
+                let s = c.wait().ok();
+                self.0 = None;
+                return s;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+impl Drop for RunChild {
+    fn drop(&mut self) {
+        self.wait(Duration::from_secs(10), true);
+    }
+}
+
+/// The prefix the run `pid` created, once its files exist.
+fn find_prefix(pid: u32, child: &mut RunChild, stop: &AtomicBool) -> Result<String, LatencyError> {
+    let t = Instant::now();
+    loop {
+        if let Some(p) = cleanup::run_prefixes()
+            .into_iter()
+            .find(|p| cleanup::run_prefix_pid(p) == Some(pid))
+        {
+            return Ok(p);
+        }
+        if let Some(c) = child.0.as_mut() {
+            if let Ok(Some(s)) = c.try_wait() {
+                return Err(err(format!("beliefbus run exited at start ({s})")));
+            }
+        }
+        if stop.load(Ordering::Relaxed) {
+            return Err(err("stopped before the pipeline started"));
+        }
+        if t.elapsed() > Duration::from_secs(30) {
+            return Err(err(
+                "the pipeline's shared memory did not appear within 30 s",
+            ));
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+fn stage_figures(report: &serde_json::Value) -> Vec<(String, StageFigures)> {
+    ["ingest", "filter", "control", "refine", "plant"]
+        .iter()
+        .filter_map(|&name| {
+            let s = report.get("stages")?.get(name)?;
+            Some((
+                name.to_string(),
+                StageFigures {
+                    processed: s["processed"].as_u64().unwrap_or(0),
+                    deadline_misses: s["deadline_misses"].as_u64().unwrap_or(0),
+                    budget_us: s["budget_us"].as_f64(),
+                    compute_p50_us: s["compute_p50_us"].as_f64(),
+                    compute_p99_us: s["compute_p99_us"].as_f64(),
+                    late: s["late"].as_u64().unwrap_or(0),
+                    lateness_p99_us: s["lateness_p99_us"].as_f64(),
+                },
+            ))
+        })
+        .collect()
+}
+
+/// Run the pipeline and measure it; `stop` ends it early.
+pub fn measure(
+    cfg: &PipelineJitterConfig,
+    stop: &AtomicBool,
+) -> Result<PipelineJitter, LatencyError> {
+    // Validate exactly as `beliefbus run` will (a bad config: BadArg).
+    let pcfg =
+        config::load(&cfg.config, &cfg.sets).map_err(|e| LatencyError::BadArg(e.to_string()))?;
+    let rate = pcfg.plant.sensor_rate_hz;
+    let period_ns = (1e9 / rate).round() as u64;
+    let warmup = Duration::from_secs_f64(pcfg.run.warmup_s.max(0.0));
+    let e2e_budget_ns = pcfg.stages.ingest.budget_ns()
+        + pcfg.stages.filter.budget_ns()
+        + pcfg.stages.control.budget_ns();
+    // Run long enough for start-up, warm-up, the window and a margin.
+    let run_s = warmup.as_secs_f64() + cfg.duration.as_secs_f64() + 2.0;
+    let report = std::env::temp_dir().join(format!(
+        "beliefbus-jitter-{}-{}.json",
+        std::process::id(),
+        now_ns()
+    ));
+    let mut cmd = Command::new(&cfg.exe);
+    cmd.arg("run")
+        .arg(&cfg.config)
+        .arg("--duration")
+        .arg(format!("{run_s:.3}"))
+        .arg("--quiet")
+        .arg("--report")
+        .arg(&report);
+    for s in &cfg.sets {
+        cmd.arg("--set").arg(s);
+    }
+    // Its tables are not ours to print; its warnings and errors are
+    // passed on (all but the line about the temporary report).
+    cmd.stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    let mut child = cmd
+        .spawn()
+        .map_err(|e| LatencyError::Spawn(format!("cannot start beliefbus run: {e}")))?;
+    if let Some(err_pipe) = child.stderr.take() {
+        let hide = format!("wrote {}", report.display());
+        std::thread::spawn(move || {
+            use std::io::BufRead;
+            for line in std::io::BufReader::new(err_pipe)
+                .lines()
+                .map_while(Result::ok)
+            {
+                if line != hide {
+                    eprintln!("pipeline: {line}");
+                }
+            }
+        });
+    }
+    let pid = child.id();
+    let mut child = RunChild(Some(child));
+    let prefix = find_prefix(pid, &mut child, stop)?;
+
+    let mut out = PipelineJitter {
+        sensor_rate_hz: rate,
+        controls: 0,
+        control_period_jitter: LatencyHist::new(),
+        control_period_misses: 0,
+        sensor_to_control: LatencyHist::new(),
+        e2e_budget_ns,
+        e2e_misses: 0,
+        sensor_period_jitter: LatencyHist::new(),
+        sensor_to_ingest: LatencyHist::new(),
+        stages: Vec::new(),
+        report_hops: serde_json::Value::Null,
+        shm_left: 0,
+        stopped: false,
+    };
+    {
+        let bus = Bus::open(
+            &BusConfig {
+                prefix: prefix.clone(),
+                instance: pcfg.run.instance.clone(),
+            },
+            "jitter-monitor",
+        )?;
+        let sub = bus.subscriber_with::<Control>(256, false)?;
+        let mut window: Option<(u64, u64)> = None; // (start, end) ns
+        let mut prev: Option<Control> = None;
+        let t_start = Instant::now();
+        loop {
+            if stop.load(Ordering::Relaxed) {
+                out.stopped = true;
+                break;
+            }
+            if let Some(c) = child.0.as_mut() {
+                if let Ok(Some(s)) = c.try_wait() {
+                    child.0 = None;
+                    return Err(err(format!("beliefbus run ended early ({s})")));
+                }
+            }
+            let now = now_ns();
+            if let Some((_, end)) = window {
+                if now >= end {
+                    break;
+                }
+            } else if t_start.elapsed() > Duration::from_secs(60) {
+                return Err(err("no control from the pipeline within 60 s"));
+            }
+            while let Some(c) = sub.receive()? {
+                let t = c.header.t_pub_ns;
+                let (w0, w1) = *window.get_or_insert_with(|| {
+                    let w0 = t + warmup.as_nanos() as u64;
+                    (w0, w0 + cfg.duration.as_nanos() as u64)
+                });
+                if t < w0 || t >= w1 {
+                    prev = Some(c);
+                    continue;
+                }
+                out.controls += 1;
+                if let Some(e2e) = c.trace.hop_ns(Hop::SensorToControl) {
+                    out.sensor_to_control.record(e2e);
+                    out.e2e_misses += (e2e_budget_ns > 0 && e2e > e2e_budget_ns) as u64;
+                }
+                if let Some(si) = c.trace.hop_ns(Hop::SensorToIngest) {
+                    out.sensor_to_ingest.record(si);
+                }
+                if let Some(p) = prev {
+                    // Only consecutive controls of the same publisher.
+                    if c.header.seq == p.header.seq + 1 && t > p.header.t_pub_ns {
+                        let d = t - p.header.t_pub_ns;
+                        out.control_period_jitter.record(d.abs_diff(period_ns));
+                        let periods = (d as f64 / period_ns as f64).round() as u64;
+                        out.control_period_misses += periods.saturating_sub(1);
+                    }
+                    let (s, ps) = (&c.trace, &p.trace);
+                    if s.sensor_channel == ps.sensor_channel
+                        && s.sensor_seq == ps.sensor_seq + 1
+                        && s.t_sensor_pub_ns > ps.t_sensor_pub_ns
+                    {
+                        let d = s.t_sensor_pub_ns - ps.t_sensor_pub_ns;
+                        out.sensor_period_jitter.record(d.abs_diff(period_ns));
+                    }
+                }
+                prev = Some(c);
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        // The port and node close here, before the run's own cleanup.
+    }
+    let status = child.wait(Duration::from_secs_f64(run_s + 30.0), out.stopped);
+    // Safety net: whatever the run could not remove while we were attached.
+    let _ = cleanup::remove_prefix(&prefix);
+    out.shm_left = cleanup::resources(&prefix).len();
+    let report_json: Option<serde_json::Value> = std::fs::read_to_string(&report)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok());
+    let _ = std::fs::remove_file(&report);
+    match (status, &report_json) {
+        (Some(s), Some(r)) if s.success() || out.stopped => {
+            out.stages = stage_figures(r);
+            out.report_hops = r["hops"].clone();
+        }
+        (s, _) if !out.stopped => {
+            return Err(err(format!(
+                "beliefbus run failed ({})",
+                s.map(|s| s.to_string())
+                    .unwrap_or_else(|| "not reaped".into())
+            )));
+        }
+        _ => {}
+    }
+    Ok(out)
+}
+
+impl PipelineJitter {
+    /// The percentile block of the control period jitter.
+    pub fn control_block(&self) -> PctBlock {
+        PctBlock::of(&self.control_period_jitter)
+    }
+}
