@@ -216,6 +216,16 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
         }
     };
     cfg.run.prefix = prefix.clone();
+    if !opts.quiet {
+        eprintln!(
+            "beliefbus: {} ({} Hz, filter {}, control {}) under shared-memory prefix {prefix}",
+            cfg.run.scenario.name(),
+            cfg.plant.sensor_rate_hz,
+            cfg.filter.backend.name(),
+            cfg.control.backend.name()
+        );
+    }
+    // Always printed (also with --quiet): external publishers need it.
     eprintln!(
         "bus: prefix={prefix} instance={} sensor={}{}",
         cfg.run.instance,
@@ -226,15 +236,6 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
             ""
         }
     );
-    if !opts.quiet {
-        eprintln!(
-            "beliefbus: {} ({} Hz, filter {}, control {}) under shared-memory prefix {prefix}",
-            cfg.run.scenario.name(),
-            cfg.plant.sensor_rate_hz,
-            cfg.filter.backend.name(),
-            cfg.control.backend.name()
-        );
-    }
     let result = supervise(&cfg, opts, &prefix, stop);
     // Whatever happened, leave nothing behind.
     let cleaned = cleanup::remove_prefix(&prefix);
