@@ -57,6 +57,33 @@ pub trait SdeModel: Send + Sync {
     /// Drift f(x, u), written into `f` (length d). `u` has length
     /// `dims().control` (empty for an uncontrolled model).
     fn drift(&self, x: &[f64], u: &[f64], f: &mut [f64]);
+    /// Drift of `n` states at once, in structure-of-arrays layout:
+    /// component i of state k is `x[i·n + k]` (d × n), control j of state k
+    /// is `u[j·n + k]` (c × n), and f(x_k, u_k)_i goes to `f[i·n + k]`.
+    ///
+    /// Samplers that advance many states in lockstep (MPPI rollouts) call
+    /// this; a model overrides it with branch-free loops over k so that the
+    /// compiler vectorises them. The default gathers each state and calls
+    /// [`SdeModel::drift`].
+    fn drift_soa(&self, n: usize, x: &[f64], u: &[f64], f: &mut [f64]) {
+        let dims = self.dims();
+        let (d, c) = (dims.state, dims.control);
+        let mut xk = [0.0; MAX_STATE];
+        let mut uk = [0.0; crate::MAX_CONTROL];
+        let mut fk = [0.0; MAX_STATE];
+        for k in 0..n {
+            for i in 0..d {
+                xk[i] = x[i * n + k];
+            }
+            for j in 0..c {
+                uk[j] = u[j * n + k];
+            }
+            self.drift(&xk[..d], &uk[..c], &mut fk[..d]);
+            for i in 0..d {
+                f[i * n + k] = fk[i];
+            }
+        }
+    }
     /// Diffusion F(x), d × k column-major, written into `big_f`.
     fn diffusion(&self, x: &[f64], big_f: &mut [f64]);
     /// Observation mean g(x), written into `g` (length m).

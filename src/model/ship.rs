@@ -144,6 +144,39 @@ impl SdeModel for Ship {
         f[2] = f1 + u1;
         f[3] = f2 + u2;
     }
+    /// The same drift for n states (SoA, see [`SdeModel::drift_soa`]),
+    /// branch-free so that the loop over k vectorises: the wall force is
+    /// computed for every state and selected where ρ² ≥ R² and ẋ·x ≥ 0.
+    #[inline(always)]
+    fn drift_soa(&self, n: usize, x: &[f64], u: &[f64], f: &mut [f64]) {
+        let (r2, gain) = (
+            self.params.radius * self.params.radius,
+            self.params.wall_gain,
+        );
+        let (x1, rest) = x.split_at(n);
+        let (x2, rest) = rest.split_at(n);
+        let (x3, x4) = rest.split_at(n);
+        let (u1, u2) = u.split_at(n);
+        let (f1, rest) = f.split_at_mut(n);
+        let (f2, rest) = rest.split_at_mut(n);
+        let (f3, f4) = rest.split_at_mut(n);
+        let (x4, u2, f4) = (&x4[..n], &u2[..n], &mut f4[..n]);
+        for k in 0..n {
+            let (a, b, va, vb) = (x1[k], x2[k], x3[k], x4[k]);
+            let rho2 = a * a + b * b;
+            let out = rho2 >= r2 && a * va + b * vb >= 0.0;
+            // max(·, R²) keeps the root finite where the force is unused.
+            let g = if out {
+                -gain / rho2.max(r2).sqrt()
+            } else {
+                0.0
+            };
+            f1[k] = va;
+            f2[k] = vb;
+            f3[k] = g * a + u1[k];
+            f4[k] = g * b + u2[k];
+        }
+    }
     fn diffusion(&self, _x: &[f64], big_f: &mut [f64]) {
         big_f[..16].fill(0.0);
         for i in 0..4 {
@@ -283,5 +316,36 @@ mod tests {
         ship.obs_residual(&[1.0, PI - 0.01], &[1.0, -PI + 0.01], &mut r);
         assert!((r[1] + 0.02).abs() < 1e-12);
         assert!((wrap_angle(3.0 * PI) - PI).abs() < 1e-12);
+    }
+    #[test]
+    fn batched_drift_equals_the_per_state_drift() {
+        use rand::RngExt;
+        let ship = Ship::new(ShipParams::paper(0.01)).unwrap();
+        let mut rng = crate::rng::stream(3, 0);
+        // Odd n so no lane count divides it; states on both sides of the wall.
+        let n = 37;
+        let mut x = vec![0.0; 4 * n];
+        let mut u = vec![0.0; 2 * n];
+        for v in x.iter_mut() {
+            *v = rng.random_range(-12.0..12.0);
+        }
+        for v in u.iter_mut() {
+            *v = rng.random_range(-3.0..3.0);
+        }
+        let mut f = vec![0.0; 4 * n];
+        ship.drift_soa(n, &x, &u, &mut f);
+        let mut outside = 0;
+        for k in 0..n {
+            let xk = [x[k], x[n + k], x[2 * n + k], x[3 * n + k]];
+            let mut fk = [0.0; 4];
+            ship.drift(&xk, &[u[k], u[n + k]], &mut fk);
+            if ship.wall_force(&xk) != (0.0, 0.0) {
+                outside += 1;
+            }
+            for i in 0..4 {
+                assert_eq!(f[i * n + k], fk[i], "state {k}, component {i}");
+            }
+        }
+        assert!(outside > 0, "no state exercised the wall force");
     }
 }
