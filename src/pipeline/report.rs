@@ -17,6 +17,10 @@
 //! ```
 //! Hops count only samples measured after `run.warmup_s`; a figure with no
 //! data is `null` (e.g. control hops of an estimation-only run).
+//! `sensor_samples_after_warmup` and the `control` counters come from the
+//! plant (built-in, or `beliefbus plant`): `null` with other external
+//! publishers, whose controls the pipeline cannot see applied
+//! (`stages.control.processed` counts the controls published).
 
 use super::monitor::Accuracy;
 use crate::ipc::{stats_flags, Hop, Percentiles, StageKind, StageStats};
@@ -120,8 +124,11 @@ impl ReportInput {
     pub fn to_json(&self) -> Value {
         let mut hops = Map::new();
         for h in Hop::ALL {
+            // An empty histogram (e.g. the control hops of an estimation-only
+            // run) is reported as count 0 with null percentiles, not zeros.
             let v = self
                 .hop(h)
+                .filter(|r| r.count > 0)
                 .map(|r| serde_json::to_value(r).unwrap_or(Value::Null))
                 .unwrap_or_else(|| {
                     json!({"count": 0, "p50_us": null, "p90_us": null, "p99_us": null,
@@ -181,7 +188,7 @@ impl ReportInput {
                 .stats(StageKind::Ingest)
                 .map(|i| i.processed + i.rejected + i.dropped))
                 .unwrap_or(0),
-            "sensor_samples_after_warmup": plant.map(|p| p.processed_after_warmup).unwrap_or(0),
+            "sensor_samples_after_warmup": plant.map(|p| p.processed_after_warmup),
             "hops": hops,
             "stages": stages,
             "accuracy": {
@@ -192,10 +199,10 @@ impl ReportInput {
                 "samples": a.samples,
             },
             "control": {
-                "waypoints_reached": plant.map(|p| p.waypoints_reached).unwrap_or(0),
+                "waypoints_reached": plant.map(|p| p.waypoints_reached),
                 "mean_distance_to_waypoint":
                     opt(plant.filter(|p| p.controls_received > 0).map(|p| p.mean_goal_distance)),
-                "controls_received": plant.map(|p| p.controls_received).unwrap_or(0),
+                "controls_received": plant.map(|p| p.controls_received),
             },
             "shared_memory": {
                 "files_removed": self.files_removed,
