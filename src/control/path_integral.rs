@@ -12,7 +12,10 @@
 //! ```
 //!
 //! with running cost V(x) + ½ uᵀRu, R = r I, and terminal cost Φ from the
-//! [`TrackingCost`]. Condition (8) is checked at construction: γ = r e² for
+//! [`TrackingCost`]. Control limits: the paper has none; here the path
+//! functional gains a soft penalty on the controls the path implies
+//! (`control_limit_weight`, so the plan respects the actuator), and the
+//! returned control is clamped to ±`u_max`. Condition (8) is checked at construction: γ = r e² for
 //! the ship, whose control and velocity noise share a channel. (The ship's
 //! position noise e dw₁, e dw₂ cannot be written in the form (7); the
 //! controller's model leaves it out.)
@@ -106,6 +109,10 @@ pub struct PathIntegralConfig {
     pub control_cost: f64,
     /// Each control component is clamped to [−u_max, u_max].
     pub u_max: f64,
+    /// κ of the soft limit κ·max(0, |u_c| − u_max)² per unit time on the
+    /// controls the planned path implies (0: the paper's unconstrained F,
+    /// only the final clamp). See `PathSetup::with_control_limit`.
+    pub control_limit_weight: f64,
     /// Seed of the sampler's random numbers.
     pub seed: u64,
     /// Per-control compute budget in µs (0: unlimited).
@@ -131,6 +138,7 @@ impl Default for PathIntegralConfig {
             belief_samples: 4,
             control_cost: 0.1,
             u_max: 3.0,
+            control_limit_weight: 10.0,
             seed: 1,
             budget_us: 500.0,
             gradient: GradientConfig::Analytic,
@@ -189,6 +197,9 @@ impl PathIntegralConfig {
         }
         if !(self.u_max > 0.0) || self.u_max.is_nan() {
             return Err(invalid("u_max", "must be positive"));
+        }
+        if !(self.control_limit_weight >= 0.0 && self.control_limit_weight.is_finite()) {
+            return Err(invalid("control_limit_weight", "must be ≥ 0 and finite"));
         }
         if !(self.budget_us >= 0.0 && self.budget_us.is_finite()) {
             return Err(invalid("budget_us", "must be ≥ 0 (0: unlimited)"));
@@ -378,6 +389,7 @@ impl<M: ControlAffine, C: PathCost> PathIntegralController<M, C> {
             r[i + i * p] = cfg.control_cost;
         }
         let setup = PathSetup::new(&model, &r[..p * p], cfg.dt)
+            .and_then(|s| s.with_control_limit(cfg.u_max, cfg.control_limit_weight))
             .map_err(|e| ControlError::Model(e.to_string()))?;
         let k = match cfg.belief {
             BeliefMode::Mean => 1,

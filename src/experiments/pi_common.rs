@@ -83,6 +83,19 @@ pub fn percentile(v: &[f64], q: f64) -> f64 {
     }
 }
 
+/// CPU time of the calling thread in µs (CLOCK_THREAD_CPUTIME_ID): compute
+/// time without the time the thread spent descheduled, so percentiles stay
+/// meaningful on a loaded machine (wall time is reported beside it).
+pub fn thread_cpu_us() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes one timespec through a valid pointer.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    ts.tv_sec as f64 * 1e6 + ts.tv_nsec as f64 * 1e-3
+}
+
 /// Euclidean norm.
 pub fn norm(v: &[f64]) -> f64 {
     v.iter().map(|x| x * x).sum::<f64>().sqrt()
@@ -113,5 +126,16 @@ mod tests {
         assert_eq!(param(&args, "y", 7usize).unwrap(), 7);
         assert!(check_params(&args, &["samples"]).is_err());
         assert!(check_params(&args, &["samples", "x"]).is_ok());
+        // The thread clock advances with work and not with sleep.
+        let t0 = thread_cpu_us();
+        let mut acc = 0.0f64;
+        for i in 0..2_000_000 {
+            acc += (i as f64).sqrt();
+        }
+        std::hint::black_box(acc);
+        let t1 = thread_cpu_us();
+        assert!(t1 > t0, "{t0} → {t1}");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        assert!(thread_cpu_us() - t1 < 25_000.0, "sleep counted as CPU time");
     }
 }

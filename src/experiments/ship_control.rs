@@ -18,9 +18,12 @@
 //! closed-loop cost = Σ_k [q(x_k) + 0.05 ‖u_k‖²] Δ over the run, with q
 //! tracking the active waypoint. Compute = wall time of `compute` (MPPI's
 //! noise for the next call is drawn by `prepare` outside the timed region,
-//! as the control stage does).
+//! as the control stage does), and its thread CPU time (`cpu_*`: the same
+//! without the time descheduled — on a shared machine the wall-time p99 is
+//! mostly other processes' time slices). Speedups are p50 ratios to
+//! `mppi_2048` measured in the same run; cost ratios are paired by run.
 
-use super::pi_common::{check_params, list_param, mean_std, param, percentile};
+use super::pi_common::{check_params, list_param, mean_std, param, percentile, thread_cpu_us};
 use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::belief::Gaussian;
 use crate::control::cost::{DiscBarrier, TrackingCost};
@@ -67,6 +70,9 @@ impl Ctl {
     }
 }
 
+/// One controller's result: name, per-run costs, (wall p50, CPU p50) µs, row.
+type Summary = (String, Vec<f64>, (f64, f64), Row);
+
 struct Spec {
     name: String,
     make: Box<dyn Fn(u64) -> anyhow::Result<Ctl>>,
@@ -84,6 +90,7 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
             "pi_belief",
             "budget_us",
             "mppi_samples",
+            "pi_limit_weight",
         ],
     )?;
     let runs = args.runs.unwrap_or(5);
@@ -96,6 +103,11 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
     let pi_samples: Vec<usize> = list_param(args, "pi_samples", &[8, 0])?;
     let pi_belief: String = param(args, "pi_belief", "mean".to_string())?;
     let budget_us: f64 = param(args, "budget_us", 0.0)?;
+    let limit_weight: f64 = param(
+        args,
+        "pi_limit_weight",
+        PathIntegralConfig::default().control_limit_weight,
+    )?;
     let mppi_samples: Vec<usize> = list_param(args, "mppi_samples", &[2048, 512])?;
     let dt = 0.01;
     let steps = (duration / dt).round() as usize;
@@ -125,6 +137,7 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
             u_max: mppi_cfg.u_max[0],
             budget_us,
             belief,
+            control_limit_weight: limit_weight,
             ..PathIntegralConfig::default()
         };
         specs.push(Spec {
@@ -182,16 +195,18 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
     rep.param("control_weight", w_u);
     rep.param("pi_belief", pi_belief.as_str());
     rep.param("pi_budget_us", budget_us);
+    rep.param("pi_limit_weight", limit_weight);
     rep.param(
         "waypoints",
-        "(5,0) (0,5) (-5,0) (0,-5), reach 0.5, no cycle",
+        "(5,5) (-5,5) (-5,-5) (5,-5), reach 1.0, no cycle; start (3,0,0,0)",
     );
     rep.param("seed", args.seed);
 
     let mut bar = Progress::new("ship-control", runs * specs.len(), args.progress);
-    let mut rows: Vec<(String, f64, f64, Row)> = vec![];
+    let mut rows: Vec<Summary> = vec![];
     for spec in &specs {
         let (mut costs, mut reached, mut times, mut fails) = (vec![], vec![], vec![], 0usize);
+        let mut cpu = vec![];
         let mut final_dist = vec![];
         for run in 0..runs {
             let mut ctl = (spec.make)(args.seed.wrapping_add(run as u64))?;
@@ -214,9 +229,10 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
                         b.mean[i] += std[i] * sense.sample::<f64, _>(StandardNormal);
                     }
                 }
-                let start = Instant::now();
+                let (start, c0) = (Instant::now(), thread_cpu_us());
                 let r = ctl.as_controller().compute(k as f64 * dt, &b, &mut u);
                 times.push(start.elapsed().as_secs_f64() * 1e6);
+                cpu.push(thread_cpu_us() - c0);
                 if r.is_err() {
                     fails += 1;
                     u = [0.0, 0.0];
@@ -238,6 +254,7 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
         }
         let (mc, sc) = mean_std(&costs);
         let p50 = percentile(&times, 0.5);
+        let cpu50 = percentile(&cpu, 0.5);
         let row = Row::new(&spec.name)
             .num("cost", mc)
             .num("cost_std", sc)
@@ -246,15 +263,28 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
             .num("compute_p50_us", p50)
             .num("compute_p90_us", percentile(&times, 0.9))
             .num("compute_p99_us", percentile(&times, 0.99))
+            .num("cpu_p50_us", cpu50)
+            .num("cpu_p99_us", percentile(&cpu, 0.99))
             .int("failed_controls", fails as u64);
-        rows.push((spec.name.clone(), mc, p50, row));
+        rows.push((spec.name.clone(), costs, (p50, cpu50), row));
     }
-    let reference = rows.iter().find(|r| r.0 == "mppi_2048").map(|r| (r.1, r.2));
-    for (_, c, p50, row) in rows {
-        let row = match reference {
-            Some((c_ref, t_ref)) => row
-                .num("cost_vs_mppi_2048", c / c_ref)
-                .num("compute_speedup_vs_mppi_2048", t_ref / p50),
+    let reference = rows
+        .iter()
+        .find(|r| r.0 == "mppi_2048")
+        .map(|r| (r.1.clone(), r.2));
+    for (_, c, (p50, cpu50), row) in rows {
+        let row = match &reference {
+            Some((c_ref, (t_ref, cpu_ref))) => {
+                // Paired by run (same plant noise): mean and range of the ratio.
+                let ratios: Vec<f64> = c.iter().zip(c_ref).map(|(a, b)| a / b).collect();
+                let lo = ratios.iter().copied().fold(f64::INFINITY, f64::min);
+                let hi = ratios.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                row.num("cost_vs_mppi_2048", mean_std(&ratios).0)
+                    .num("cost_ratio_min", lo)
+                    .num("cost_ratio_max", hi)
+                    .num("compute_speedup_vs_mppi_2048", t_ref / p50)
+                    .num("cpu_speedup_vs_mppi_2048", cpu_ref / cpu50)
+            }
             None => row,
         };
         rep.results.push(row);

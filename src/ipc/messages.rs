@@ -541,6 +541,11 @@ pub struct StageStats {
     pub response_p50_ns: u64,
     pub response_p99_ns: u64,
     pub response_max_ns: u64,
+    /// Control only: mean closed-loop running cost per second after the
+    /// warm-up, (1/T)∫[q(x̂) + w‖u‖²]dt at the belief mean x̂, over T =
+    /// `control_cost_time_s` (0: no data).
+    pub control_cost: f64,
+    pub control_cost_time_s: f64,
 }
 
 impl Default for StageStats {
@@ -567,6 +572,8 @@ impl Default for StageStats {
             response_p50_ns: 0,
             response_p99_ns: 0,
             response_max_ns: 0,
+            control_cost: 0.0,
+            control_cost_time_s: 0.0,
         }
     }
 }

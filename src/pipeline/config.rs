@@ -16,6 +16,7 @@
 use super::scenario::{AnyModel, Scenario};
 use crate::control::cost::DiscBarrier;
 use crate::control::mppi::MppiConfig;
+use crate::control::path_integral::{PathIntegralConfig, PathIntegralConfigError};
 use crate::control::waypoints::RouteConfig;
 use crate::filter::ekf::EkfConfig;
 use crate::filter::pf::PfConfig;
@@ -228,6 +229,8 @@ pub struct FilterConfig {
 pub enum ControlBackend {
     /// Model-predictive path-integral control.
     Mppi,
+    /// Path-integral control by implicit sampling (paper 003), `[control.implicit]`.
+    Implicit,
     /// No controller: the control stage only consumes beliefs.
     None,
 }
@@ -236,6 +239,7 @@ impl ControlBackend {
     pub fn name(self) -> &'static str {
         match self {
             ControlBackend::Mppi => "mppi",
+            ControlBackend::Implicit => "implicit",
             ControlBackend::None => "none",
         }
     }
@@ -266,6 +270,9 @@ pub struct ControlConfig {
     pub cost: Option<CostConfig>,
     #[serde(default)]
     pub mppi: MppiConfig,
+    /// The implicit path-integral controller (backend `implicit`).
+    #[serde(default)]
+    pub implicit: PathIntegralConfig,
     /// Freshest-data policy: a belief older than this (µs since it was
     /// published) when the controller gets to it is skipped and counted as
     /// dropped, so a controller slower than the sensor computes on fresh
@@ -783,6 +790,17 @@ impl PipelineConfig {
                 .mppi
                 .validate(dims.control)
                 .map_err(|e| ConfigError::new(format!("control.mppi.{}", e.key), e.problem)),
+            ControlBackend::Implicit => {
+                if let Err(PathIntegralConfigError::Invalid { key, problem }) =
+                    c.implicit.validate()
+                {
+                    return Err(ConfigError::new(format!("control.implicit.{key}"), problem));
+                }
+                // Condition (8) and the model's structure, checked at start.
+                crate::stage::control::implicit_controller(model, cost, &c.implicit)
+                    .map(|_| ())
+                    .map_err(|e| ConfigError::new("control.backend", e))
+            }
             ControlBackend::None => Ok(()),
         }
     }

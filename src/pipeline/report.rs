@@ -12,7 +12,8 @@
 //!              deadline_misses, compute_p50_us, compute_p99_us, budget_us,
 //!              fifo, mlocked, exit_status} },
 //!   accuracy: {rmse_position, rmse_state, rmse_position_raw, beliefs, samples},
-//!   control:  {waypoints_reached, mean_distance_to_waypoint, controls_received},
+//!   control:  {waypoints_reached, mean_distance_to_waypoint, controls_received,
+//!              controller, cost, compute_p50_us, compute_p99_us},
 //!   shared_memory: {files_removed, files_left} }
 //! ```
 //! Hops count only samples measured after `run.warmup_s`; a figure with no
@@ -21,6 +22,13 @@
 //! plant (built-in, or `beliefbus plant`): `null` with other external
 //! publishers, whose controls the pipeline cannot see applied
 //! (`stages.control.processed` counts the controls published).
+//!
+//! `control.cost` is the closed-loop running cost per second after the
+//! warm-up, (1/T)∫[q(x̂) + w‖u‖²]dt with the tracking cost q of
+//! `[control.cost]` at the belief mean x̂ and the active waypoint, each
+//! control held until the next belief, w the backend's control weight;
+//! `control.compute_p50_us`/`p99_us` are the control stage's compute time
+//! per control (belief taken → control published).
 
 use super::monitor::Accuracy;
 use crate::ipc::{stats_flags, Hop, Percentiles, StageKind, StageStats};
@@ -174,6 +182,7 @@ impl ReportInput {
             );
         }
         let plant = self.stats(StageKind::Plant);
+        let ctl = self.stats(StageKind::Control);
         let a = &self.accuracy;
         json!({
             "scenario": self.scenario,
@@ -203,6 +212,12 @@ impl ReportInput {
                 "mean_distance_to_waypoint":
                     opt(plant.filter(|p| p.controls_received > 0).map(|p| p.mean_goal_distance)),
                 "controls_received": plant.map(|p| p.controls_received),
+                "controller": self.controller,
+                "cost": opt(ctl.filter(|c| c.control_cost_time_s > 0.0).map(|c| c.control_cost)),
+                "compute_p50_us":
+                    opt(ctl.filter(|c| c.compute.count > 0).map(|c| us(c.compute.p50_ns))),
+                "compute_p99_us":
+                    opt(ctl.filter(|c| c.compute.count > 0).map(|c| us(c.compute.p99_ns))),
             },
             "shared_memory": {
                 "files_removed": self.files_removed,
@@ -290,6 +305,19 @@ impl ReportInput {
                     "control: {} controls applied, {} waypoints reached, mean distance to waypoint {:.2}\n",
                     p.controls_received, p.waypoints_reached, p.mean_goal_distance
                 ));
+                if let Some(c) = self.stats(StageKind::Control) {
+                    out.push_str(&format!(
+                        "controller {}: closed-loop cost {}/s, compute p50 {:.1} µs, p99 {:.1} µs\n",
+                        self.controller,
+                        if c.control_cost_time_s > 0.0 {
+                            format!("{:.3}", c.control_cost)
+                        } else {
+                            "-".into()
+                        },
+                        us(c.compute.p50_ns),
+                        us(c.compute.p99_ns)
+                    ));
+                }
             }
         }
         out
@@ -411,6 +439,37 @@ mod tests {
         assert!(v["stages"]["ingest"]["rejected_by_reason"]
             .get("non_finite")
             .is_some());
+    }
+
+    #[test]
+    fn control_section_has_controller_cost_and_compute_percentiles() {
+        let mut inp = input();
+        let v = inp.to_json();
+        assert_eq!(v["control"]["controller"], json!("mppi"));
+        // No control data yet: null, not zero.
+        for k in ["cost", "compute_p50_us", "compute_p99_us"] {
+            assert!(v["control"][k].is_null(), "{k}");
+        }
+        let (_, end) = inp
+            .stages
+            .iter_mut()
+            .find(|(k, _)| *k == StageKind::Control)
+            .unwrap();
+        let s = end.stats.as_mut().unwrap();
+        s.control_cost = 12.5;
+        s.control_cost_time_s = 3.0;
+        s.compute = Percentiles {
+            count: 10,
+            p50_ns: 250_000,
+            p90_ns: 300_000,
+            p99_ns: 420_000,
+            p999_ns: 500_000,
+            max_ns: 600_000,
+        };
+        let v = inp.to_json();
+        assert_eq!(v["control"]["cost"], json!(12.5));
+        assert_eq!(v["control"]["compute_p50_us"], json!(250.0));
+        assert_eq!(v["control"]["compute_p99_us"], json!(420.0));
     }
 
     #[test]

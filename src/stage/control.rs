@@ -21,6 +21,7 @@ use super::{
 };
 use crate::control::cost::TrackingCost;
 use crate::control::mppi::Mppi;
+use crate::control::path_integral::{PathIntegralConfig, PathIntegralController};
 use crate::control::waypoints::WaypointTracker;
 use crate::control::{ControlError, Controller};
 use crate::ipc::{
@@ -28,7 +29,7 @@ use crate::ipc::{
     Subscriber, Wake,
 };
 use crate::model::SdeModel;
-use crate::pipeline::config::ControlBackend;
+use crate::pipeline::config::{ControlBackend, CostConfig};
 use crate::pipeline::{AnyModel, PipelineConfig};
 use crate::rt::Clock;
 use crate::{MAX_CONTROL, MAX_STATE};
@@ -96,12 +97,14 @@ impl ControlPorts {
 /// such as MPPI's `prepare` are reachable).
 pub enum Backend {
     Mppi(Box<Mppi<AnyModel>>),
+    Implicit(Box<PathIntegralController>),
 }
 
 impl Backend {
     fn controller(&mut self) -> &mut dyn Controller {
         match self {
             Backend::Mppi(m) => m.as_mut(),
+            Backend::Implicit(c) => c.as_mut(),
         }
     }
 
@@ -109,12 +112,42 @@ impl Backend {
     fn prepare(&mut self) {
         match self {
             Backend::Mppi(m) => m.prepare(),
+            Backend::Implicit(_) => {}
+        }
+    }
+
+    /// Weight w of the control term w‖u‖² in the closed-loop cost: the
+    /// backend's own (MPPI's `control_weight`; ½R for the path-integral
+    /// controller's ½uᵀRu).
+    fn control_weight(&self) -> f64 {
+        match self {
+            Backend::Mppi(m) => m.config().control_weight,
+            Backend::Implicit(c) => 0.5 * c.config().control_cost,
         }
     }
 }
 
-/// Build the configured backend (None for `none`). Its noise stream is
-/// seeded from `run.seed` mixed with `control.mppi.seed`.
+/// The implicit path-integral controller of the ship for `cost` (fails on
+/// other scenarios and, with condition (8) named, on a model it cannot
+/// control).
+pub fn implicit_controller(
+    model: &AnyModel,
+    cost: &CostConfig,
+    cfg: &PathIntegralConfig,
+) -> Result<PathIntegralController, String> {
+    let AnyModel::Ship(ship) = model else {
+        return Err(format!(
+            "the implicit controller needs a control-affine model (ship), not {}",
+            model.name()
+        ));
+    };
+    let tc = TrackingCost::new(&cost.q, &cost.qf, cost.barrier);
+    PathIntegralController::new(ship.clone(), tc, cfg.clone()).map_err(|e| e.to_string())
+}
+
+/// Build the configured backend (None for `none`). Its random stream is
+/// seeded from `run.seed` mixed with `control.mppi.seed` or
+/// `control.implicit.seed`.
 pub fn make_backend(cfg: &PipelineConfig) -> Result<Option<Backend>, StageError> {
     let c = &cfg.control;
     let build = |e: &dyn std::fmt::Display| StageError::Build {
@@ -134,6 +167,17 @@ pub fn make_backend(cfg: &PipelineConfig) -> Result<Option<Backend>, StageError>
             mc.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(mc.seed));
             let m = Mppi::new(model, tc, &mc).map_err(|e| build(&e))?;
             Ok(Some(Backend::Mppi(Box::new(m))))
+        }
+        ControlBackend::Implicit => {
+            let model = cfg.model()?;
+            let cost = c
+                .cost
+                .as_ref()
+                .ok_or_else(|| build(&"control.cost missing"))?;
+            let mut pc = c.implicit.clone();
+            pc.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(pc.seed));
+            let ctl = implicit_controller(&model, cost, &pc).map_err(|e| build(&e))?;
+            Ok(Some(Backend::Implicit(Box::new(ctl))))
         }
     }
 }
@@ -171,6 +215,15 @@ pub fn run(
     let mut out_seq = 0u64;
     let mut err = None;
     let max_age_ns = (cfg.control.max_belief_age_us * 1e3) as u64;
+    // Closed-loop cost: the running cost at the belief mean with the control
+    // held until the next belief, q(x̂_k) + w‖u_k‖² over [t_k, t_{k+1}).
+    let mut eval_cost = cfg
+        .control
+        .cost
+        .as_ref()
+        .map(|c| TrackingCost::new(&c.q, &c.qf, c.barrier));
+    let w_u = backend.as_ref().map_or(0.0, |b| b.control_weight());
+    let mut rate_since: Option<(f64, f64)> = None; // (cost rate, t) of the last control
     if let Some(b) = backend.as_mut() {
         b.prepare();
     }
@@ -198,6 +251,14 @@ pub fn run(
                         return Ok(());
                     };
                     let g = b.gaussian();
+                    let epoch_ns = *epoch.get_or_insert(b.header.t_valid_ns);
+                    let t = secs_since(epoch_ns, b.header.t_valid_ns);
+                    if let Some((rate, t0)) = rate_since {
+                        if t > t0 && m.past_warmup(b.trace.t_meas_ns) {
+                            m.cost_integral += rate * (t - t0);
+                            m.cost_time += t - t0;
+                        }
+                    }
                     if let Some(r) = route.as_mut() {
                         let pos = [g.mean[axes[0]], g.mean[axes[axes.len() - 1]]];
                         if r.update(pos) || !goal_set {
@@ -206,13 +267,14 @@ pub fn run(
                             goal[axes[0]] = wp[0];
                             goal[axes[axes.len() - 1]] = wp[1];
                             backend.controller().set_goal(&goal[..dims.state]);
+                            if let Some(c) = eval_cost.as_mut() {
+                                c.set_goal(&goal[..dims.state]);
+                            }
                             goal_set = true;
                         }
                         out.goal = r.goal();
                         out.waypoints_reached = r.reached();
                     }
-                    let epoch_ns = *epoch.get_or_insert(b.header.t_valid_ns);
-                    let t = secs_since(epoch_ns, b.header.t_valid_ns);
                     let c = dims.control;
                     match backend.controller().compute(t, &g, &mut u[..c]) {
                         Ok(info) => {
@@ -226,6 +288,10 @@ pub fn run(
                             out.cost = f64::NAN;
                             u[..c].copy_from_slice(&last_good[..c]);
                         }
+                    }
+                    if let Some(ec) = eval_cost.as_ref() {
+                        let uu: f64 = u[..c].iter().map(|v| v * v).sum();
+                        rate_since = Some((ec.running(&g.mean[..dims.state]) + w_u * uu, t));
                     }
                     out.u = u;
                     out.trace = b.trace;

@@ -110,6 +110,9 @@ pub struct Metrics {
     pub goal_distance_sum: f64,
     pub goal_distance_count: u64,
     pub waypoints_reached: u64,
+    /// Control only: ∫[q(x̂) + w‖u‖²]dt and T after the warm-up.
+    pub cost_integral: f64,
+    pub cost_time: f64,
 }
 
 impl Metrics {
@@ -130,6 +133,8 @@ impl Metrics {
             goal_distance_sum: 0.0,
             goal_distance_count: 0,
             waypoints_reached: 0,
+            cost_integral: 0.0,
+            cost_time: 0.0,
         }
     }
 
@@ -194,6 +199,12 @@ impl Metrics {
             response_p50_ns: self.budget.response().quantile(0.5),
             response_p99_ns: self.budget.response().quantile(0.99),
             response_max_ns: self.budget.response().max(),
+            control_cost: if self.cost_time > 0.0 {
+                self.cost_integral / self.cost_time
+            } else {
+                0.0
+            },
+            control_cost_time_s: self.cost_time,
             ..StageStats::default()
         };
         for (slot, (hop, h)) in s.hops.iter_mut().zip(&self.hops) {

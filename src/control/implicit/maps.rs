@@ -363,4 +363,70 @@ mod tests {
         assert!((z_l - z).abs() < 0.02 * z, "linear map Z {z_l} vs {z}");
         let _ = rng.random::<f64>();
     }
+
+    /// Erratum E1 directly: the corrected log|det ∂X/∂ξ| equals the log
+    /// determinant of the finite-difference Jacobian of the map ξ ↦ X on a
+    /// non-Gaussian 3-D F (the printed eq. 3 is off by the factor 2√ρ).
+    #[test]
+    fn random_map_jacobian_matches_finite_differences_of_the_map() {
+        let f = |x: &[f64]| {
+            0.5 * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+                + 0.4 * x[0] * x[1]
+                + 0.2 * x[0].powi(4)
+                + 0.15 * (x[1] - x[2]).powi(4)
+                + 0.5 * x[2]
+        };
+        let obj = DenseObjective {
+            n: 3,
+            value: f,
+            derivatives: move |x: &[f64], g: &mut [f64], h: &mut SymBand| {
+                let d = x[1] - x[2];
+                g[0] = x[0] + 0.4 * x[1] + 0.8 * x[0].powi(3);
+                g[1] = x[1] + 0.4 * x[0] + 0.6 * d.powi(3);
+                g[2] = x[2] - 0.6 * d.powi(3) + 0.5;
+                h.set(0, 0, 1.0 + 2.4 * x[0] * x[0]);
+                h.set(1, 0, 0.4);
+                h.set(2, 0, 0.0);
+                h.set(1, 1, 1.0 + 1.8 * d * d);
+                h.set(2, 1, -1.8 * d * d);
+                h.set(2, 2, 1.0 + 1.8 * d * d);
+                f(x)
+            },
+        };
+        let mut ws = NewtonWorkspace::new(3, 2);
+        let mut mu = vec![0.0; 3];
+        let r = ws
+            .minimise(&obj, &mut mu, &NewtonOptions::default())
+            .unwrap();
+        let log_det_l = ws.l.log_det_factor();
+        let mut rm = RandomMapWorkspace::new(3);
+        let mut rng = crate::rng::stream(21, 0);
+        let (mut x, mut xp, mut xm) = ([0.0; 3], [0.0; 3], [0.0; 3]);
+        let h = 1e-6;
+        for _ in 0..20 {
+            let xi: [f64; 3] = std::array::from_fn(|_| rng.sample(StandardNormal));
+            let rho: f64 = xi.iter().map(|v| v * v).sum();
+            let s = rm.sample(&obj, &mu, r.phi, &ws.l, &xi, &mut x).unwrap();
+            let mut jac = nalgebra::Matrix3::zeros();
+            for k in 0..3 {
+                let (mut a, mut b) = (xi, xi);
+                a[k] += h;
+                b[k] -= h;
+                rm.sample(&obj, &mu, r.phi, &ws.l, &a, &mut xp).unwrap();
+                rm.sample(&obj, &mu, r.phi, &ws.l, &b, &mut xm).unwrap();
+                for i in 0..3 {
+                    jac[(i, k)] = (xp[i] - xm[i]) / (2.0 * h);
+                }
+            }
+            let fd = jac.determinant().abs().ln();
+            assert!(
+                (s.log_jacobian - fd).abs() < 1e-5,
+                "log|J| {} vs finite differences {fd}",
+                s.log_jacobian
+            );
+            let printed = printed_log_jacobian(&s, rho, 3, log_det_l);
+            // The printed form is off by the factor 2√ρ.
+            assert!((printed - fd + (2.0 * rho.sqrt()).ln()).abs() < 1e-5);
+        }
+    }
 }

@@ -113,11 +113,23 @@ pub struct PathSetup {
     /// R⁻¹ (p×p) and G (m×p), column-major.
     pub rinv: [f64; MAX_CONTROL * MAX_CONTROL],
     pub g: [f64; MAX_STATE * MAX_CONTROL],
+    /// Soft control limit (see [`PathSetup::with_control_limit`]).
+    limit: Option<ControlLimit>,
     /// The stencil (s_{i−1}, s_i) = D · (z_i, z_{i−1}, …, z_{i−K−1}) (2m × W)
     /// as its nonzeros (row, column, value).
     nz: [(u8, u8, f64); 3 * MAX_STATE],
     nnz: usize,
     w: usize,
+}
+
+/// A soft box limit on the controls a path implies.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct ControlLimit {
+    u_max: f64,
+    /// κΔt/γ: F units per (excess control)² per step.
+    weight: f64,
+    /// B⁻¹ (b×b): the implied control of an increment r is B⁻¹r/Δt.
+    binv: [f64; MAX_CONTROL * MAX_CONTROL],
 }
 
 /// Largest window (K+2)·b.
@@ -170,6 +182,7 @@ impl PathSetup {
             log_det_sigma_b,
             rinv: [0.0; MAX_CONTROL * MAX_CONTROL],
             g: gbuf,
+            limit: None,
             nz: [(0, 0, 0.0); 3 * MAX_STATE],
             nnz: 0,
             w: (k + 2) * b,
@@ -212,6 +225,73 @@ impl PathSetup {
             }
         }
         Ok(setup)
+    }
+
+    /// Add a soft box limit |u_c| ≤ u_max on the controls implied by the
+    /// path increments, u_i = B⁻¹ r_i/Δt (B = G on the noise-driven rows):
+    /// F gains Σ_i (κΔt/γ) Σ_c max(0, |u_{i,c}| − u_max)², a running cost
+    /// κ·excess² per unit time. This is not in paper 003 (which has no
+    /// limits): it approximates the input-constrained value function, whose
+    /// optimal control is the clamp of −R⁻¹Gᵀ∂ₓJ for diagonal R, so the
+    /// plan stops assuming forces the actuator cannot give. κ = 0 leaves F
+    /// as in eq. (15). Needs b = p (B square and invertible).
+    pub fn with_control_limit(mut self, u_max: f64, kappa: f64) -> Result<Self, AffineError> {
+        if kappa <= 0.0 {
+            self.limit = None;
+            return Ok(self);
+        }
+        if self.b != self.p || !(u_max > 0.0) {
+            return Err(AffineError::ControlCost);
+        }
+        let (m, b, roff) = (self.m, self.b, self.roff);
+        let bm = nalgebra::DMatrix::from_fn(b, b, |i, j| self.g[roff + i + j * m]);
+        let binv = bm.try_inverse().ok_or(AffineError::ControlCost)?;
+        let mut l = ControlLimit {
+            u_max,
+            weight: kappa * self.dt / self.gamma,
+            binv: [0.0; MAX_CONTROL * MAX_CONTROL],
+        };
+        l.binv[..b * b].copy_from_slice(binv.as_slice());
+        self.limit = Some(l);
+        Ok(self)
+    }
+
+    /// Penalty of the increment r, its gradient (added to `gr`) and Hessian
+    /// (added to `hr`, b×b) with respect to r.
+    #[inline]
+    fn limit_penalty(&self, r: &[f64], gr: &mut [f64], hr: Option<&mut [f64]>) -> f64 {
+        let Some(l) = self.limit else {
+            return 0.0;
+        };
+        let b = self.b;
+        let inv_dt = 1.0 / self.dt;
+        let mut pen = 0.0;
+        let mut hr = hr;
+        for c in 0..b {
+            let mut w = 0.0;
+            for d in 0..b {
+                w += l.binv[c + d * b] * r[d];
+            }
+            w *= inv_dt;
+            let ex = w.abs() - l.u_max;
+            if ex > 0.0 {
+                pen += l.weight * ex * ex;
+                // ∂/∂r_d = 2κ' ex sign(w) B⁻¹_{cd}/Δt; ∂²/∂r_d∂r_e = 2κ' B⁻¹_{cd}B⁻¹_{ce}/Δt².
+                let gw = 2.0 * l.weight * ex * w.signum() * inv_dt;
+                for d in 0..b {
+                    gr[d] += gw * l.binv[c + d * b];
+                }
+                if let Some(h) = hr.as_deref_mut() {
+                    let hw = 2.0 * l.weight * inv_dt * inv_dt;
+                    for d in 0..b {
+                        for e in 0..b {
+                            h[d + e * b] += hw * l.binv[c + d * b] * l.binv[c + e * b];
+                        }
+                    }
+                }
+            }
+        }
+        pen
     }
 
     /// Half-bandwidth of the Hessian: (K+2)·b − 1.
@@ -558,6 +638,11 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
                 act += 0.5 * r[c] * v;
             }
             total += act;
+            // The action and the control-limit penalty both depend on s only
+            // through r: sr = ∂/∂r, hr = ∂²/∂r².
+            let mut hr = [0.0; MAX_STATE * MAX_STATE];
+            hr[..b * b].copy_from_slice(&st.s[..b * b]);
+            total += st.limit_penalty(&r[..b], &mut sr[..b], need_h.then_some(&mut hr[..b * b]));
             // A = P (I + J_f Δt): rows roff..roff+b.
             for col in 0..m {
                 for c in 0..b {
@@ -584,7 +669,7 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
                     for d1 in 0..b {
                         let mut v = 0.0;
                         for d2 in 0..b {
-                            v += st.s[d1 + d2 * b] * a[d2 + c2 * b];
+                            v += hr[d1 + d2 * b] * a[d2 + c2 * b];
                         }
                         sa[d1 + c2 * b] = v;
                     }
@@ -598,7 +683,7 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
                         hs[c1 + c2 * m2] += v;
                     }
                     for d2 in 0..b {
-                        // (Aᵀ S)[c1, d2] = (S A)[d2, c1] (S symmetric); (prev c1, cur roff+d2).
+                        // (Aᵀ H_r)[c1, d2] = (H_r A)[d2, c1] (H_r symmetric); (prev c1, cur roff+d2).
                         let v = sa[d2 + c1 * b];
                         hs[c1 + (m + roff + d2) * m2] -= v;
                         hs[(m + roff + d2) + c1 * m2] -= v;
@@ -606,7 +691,7 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
                 }
                 for d1 in 0..b {
                     for d2 in 0..b {
-                        hs[(m + roff + d1) + (m + roff + d2) * m2] += st.s[d1 + d2 * b];
+                        hs[(m + roff + d1) + (m + roff + d2) * m2] += hr[d1 + d2 * b];
                     }
                 }
                 if out.exact {
@@ -778,6 +863,10 @@ impl<M: ControlAffine + ?Sized, C: PathCost + ?Sized> Objective for PathFunction
                 act += r[c] * v;
             }
             total += 0.5 * act;
+            if st.limit.is_some() {
+                let mut scratch = [0.0; MAX_STATE];
+                total += st.limit_penalty(&r[..b], &mut scratch[..b], None);
+            }
             let wc = if i < n { 2.0 * hw } else { hw };
             total += wc * self.cost.running(&s[..m]);
             if !self.gate_ok(i, &s) {
@@ -977,9 +1066,23 @@ mod tests {
         x: &[f64],
         n: usize,
         z: &[f64],
+        limit: Option<(f64, f64)>,
     ) {
-        let setup = PathSetup::new(model, r, dt).unwrap();
+        let mut setup = PathSetup::new(model, r, dt).unwrap();
+        let plain = setup.clone();
+        if let Some((u_max, kappa)) = limit {
+            setup = setup.with_control_limit(u_max, kappa).unwrap();
+        }
         let f = PathFunctional::new(&setup, model, cost, x, n, None);
+        if limit.is_some() {
+            // The penalty is active somewhere along z (else the check is moot).
+            let f0 = PathFunctional::new(&plain, model, cost, x, n, None).value(z);
+            assert!(
+                f.value(z) > f0 + 1e-3,
+                "limit inactive: {} vs {f0}",
+                f.value(z)
+            );
+        }
         let nn = f.dim();
         assert_eq!(z.len(), nn);
         let kd = f.bandwidth();
@@ -1097,18 +1200,32 @@ mod tests {
     fn derivatives_match_finite_differences_full_structure() {
         let n = 6;
         let z = wiggle(2 * n, 0.4, &[0.2, -0.5]);
+        let r = [4.0, 0.0, 0.0, 4.0];
+        check(&Pendulum, &Quartic, &r, 0.1, &[0.3, -0.2], n, &z, None);
+        // With the soft control limit active on most steps.
         check(
             &Pendulum,
             &Quartic,
-            &[4.0, 0.0, 0.0, 4.0],
+            &r,
             0.1,
             &[0.3, -0.2],
             n,
             &z,
+            Some((0.7, 5.0)),
         );
         let slit = ControlledBrownian { dim: 1, sigma: 1.0 };
         let z = wiggle(5, 0.5, &[0.7]);
-        check(&slit, &Quartic, &[0.1], 0.02, &[1.0], 5, &z);
+        check(&slit, &Quartic, &[0.1], 0.02, &[1.0], 5, &z, None);
+        check(
+            &slit,
+            &Quartic,
+            &[0.1],
+            0.02,
+            &[1.0],
+            5,
+            &z,
+            Some((3.0, 2.0)),
+        );
     }
 
     #[test]
@@ -1124,18 +1241,15 @@ mod tests {
                 [8.0 + 1.0 * t + 0.01 * (i as f64).sin(), 5.0 + 0.5 * t]
             })
             .collect();
-        check(&ship, &Quartic, &[0.5, 0.0, 0.0, 0.5], 0.1, &x, n, &z);
+        let r = [0.5, 0.0, 0.0, 0.5];
+        check(&ship, &Quartic, &r, 0.1, &x, n, &z, None);
+        check(&ship, &Quartic, &r, 0.1, &x, n, &z, Some((3.0, 10.0)));
         let di = DoubleIntegrator { p: 2, sigma: 1.0 };
         let z = wiggle(2 * n, 0.3, &[0.1, -0.2]);
-        check(
-            &di,
-            &Quartic,
-            &[0.01, 0.0, 0.0, 0.01],
-            0.05,
-            &[0.1, 0.2, -0.3, 0.4],
-            n,
-            &z,
-        );
+        let r = [0.01, 0.0, 0.0, 0.01];
+        let x = [0.1, 0.2, -0.3, 0.4];
+        check(&di, &Quartic, &r, 0.05, &x, n, &z, None);
+        check(&di, &Quartic, &r, 0.05, &x, n, &z, Some((20.0, 1.0)));
     }
 
     #[test]

@@ -1,4 +1,5 @@
 use super::*;
+use crate::control::path_integral::BeliefMode;
 
 const BASE: &str = r#"
 [run]
@@ -111,4 +112,25 @@ fn syntax_errors_name_the_line() {
     let e = err("[run]\nscenario = \"ship\"\ninstance = \n", &[]);
     assert_eq!(e.key, "");
     assert!(e.problem.starts_with("line 3"), "{e}");
+}
+
+#[test]
+fn the_default_config_runs_the_implicit_controller_and_mppi_stays_selectable() {
+    let text = include_str!("../../../configs/default.toml");
+    let c = load_str(text, &[]).unwrap();
+    assert_eq!(c.control.backend, ControlBackend::Implicit);
+    assert_eq!(c.control.backend.name(), "implicit");
+    assert_eq!(c.control.implicit.horizon_steps, 50);
+    assert!(c.control.implicit.budget_us > 0.0);
+    let c = load_str(text, &["control.backend=\"mppi\"".into()]).unwrap();
+    assert_eq!(c.control.backend, ControlBackend::Mppi);
+    let c = load_str(text, &["control.implicit.belief=\"sampled\"".into()]).unwrap();
+    assert_eq!(c.control.implicit.belief, BeliefMode::Sampled);
+    // Bad implicit keys are named with their path.
+    let e = err(text, &["control.implicit.dt=0.0"]);
+    assert_eq!(e.key, "control.implicit.dt", "{e}");
+    let e = err(text, &["control.implicit.horizon=\"shrinking\""]);
+    assert_eq!(e.key, "control.implicit.final_time", "{e}");
+    let e = err(text, &["control.implicit.bogus=1"]);
+    assert_eq!(e.key, "control.implicit.bogus", "{e}");
 }
