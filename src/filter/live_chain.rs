@@ -420,8 +420,14 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             self.tilted = false;
             return;
         }
+        let mut df = [0.0; MAX_STATE];
+        df[..d].copy_from_slice(&theta[..d]);
         forward_sub(&l[..d * d], d, &mut theta[..d]);
         backward_sub_t(&l[..d * d], d, &mut theta[..d]);
+        let lambda = self.calibrate_tilt(view, &theta[..d], &df[..d]);
+        for v in &mut theta[..d] {
+            *v *= lambda;
+        }
         let n = view.len();
         self.a.clear();
         self.a.resize(n, 0.0);
@@ -449,6 +455,74 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             };
         }
         self.tilted = true;
+    }
+
+    /// The scale λ of the tilt θ such that, over the states carrying the
+    /// most belief mass, the tilted rows' mean jump along θ grows by what
+    /// the control adds, θᵀ(f(z,u) − f(z,u₀))Δt(z). For a Gaussian kernel on
+    /// a dense neighbour set λ = 1; on a finite Near set with neighbours at
+    /// distance r ≫ |Δf|Δt, exp(θᵀΔz) saturates and overshoots, so λ < 1.
+    /// Bisection on λ ∈ [0, 4] (the tilted mean along θ is increasing in λ).
+    fn calibrate_tilt(&self, view: &SnapshotView, theta: &[f64], df: &[f64]) -> f64 {
+        const K: usize = 24;
+        let d = theta.len();
+        // The K states of largest mass (or the first K when φ is not set).
+        let mut top = [(0.0f64, usize::MAX); K];
+        for (i, &w) in self.phi.iter().enumerate().take(view.len()) {
+            if w > top[K - 1].0 || top[K - 1].1 == usize::MAX {
+                let mut k = K - 1;
+                top[k] = (w, i);
+                while k > 0 && (top[k].0 > top[k - 1].0 || top[k - 1].1 == usize::MAX) {
+                    top.swap(k, k - 1);
+                    k -= 1;
+                }
+            }
+        }
+        let shift = |lambda: f64| -> (f64, f64) {
+            let (mut got, mut want) = (0.0, 0.0);
+            for &(_, i) in top.iter().filter(|t| t.1 != usize::MAX) {
+                let (s, e) = (
+                    view.row_offsets[i] as usize,
+                    view.row_offsets[i + 1] as usize,
+                );
+                if s == e {
+                    continue;
+                }
+                let z = view.state(i);
+                let mut emax = f64::NEG_INFINITY;
+                for &j in &view.cols[s..e] {
+                    let y = view.state(j as usize);
+                    let a: f64 = (0..d).map(|c| theta[c] * (y[c] - z[c])).sum();
+                    emax = emax.max(lambda * a);
+                }
+                let (mut m0, mut m1, mut w1) = (0.0, 0.0, 0.0);
+                for (&j, &p) in view.cols[s..e].iter().zip(&view.probs[s..e]) {
+                    let y = view.state(j as usize);
+                    let a: f64 = (0..d).map(|c| theta[c] * (y[c] - z[c])).sum();
+                    let w = p * (lambda * a - emax).exp();
+                    m0 += p * a;
+                    m1 += w * a;
+                    w1 += w;
+                }
+                got += m1 / w1 - m0;
+                want += view.holding[i] * (0..d).map(|c| theta[c] * df[c]).sum::<f64>();
+            }
+            (got, want)
+        };
+        let (hi_got, want) = shift(4.0);
+        if !(want > 0.0) || hi_got <= want {
+            return if want > 0.0 { 4.0 } else { 1.0 };
+        }
+        let (mut lo, mut hi) = (0.0, 4.0);
+        for _ in 0..30 {
+            let mid = 0.5 * (lo + hi);
+            if shift(mid).0 < want {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        0.5 * (lo + hi)
     }
 
     /// One step of the equalised chain: out = (P^δ_u)ᵀ phi.
@@ -661,6 +735,8 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             lmax = lmax.max(-0.5 * q);
         }
         let mut sum = 0.0;
+        self.tmp.clear();
+        self.tmp.resize(n, 0.0);
         if lmax.is_finite() {
             for z in 0..n {
                 let a = self.aux[z] - lmax;

@@ -110,6 +110,18 @@ pub struct Metrics {
     pub goal_distance_sum: f64,
     pub goal_distance_count: u64,
     pub waypoints_reached: u64,
+    /// Chain figures (filter with the chain backend, refine).
+    pub chain: ChainMetrics,
+}
+
+/// Chain figures of a stage (see the `chain_*` fields of [`StageStats`]).
+#[derive(Debug, Default)]
+pub struct ChainMetrics {
+    pub versions: u64,
+    pub states: u64,
+    pub delta_s: f64,
+    pub swap: LatencyHist,
+    pub mass_lost_max: f64,
 }
 
 impl Metrics {
@@ -130,6 +142,7 @@ impl Metrics {
             goal_distance_sum: 0.0,
             goal_distance_count: 0,
             waypoints_reached: 0,
+            chain: ChainMetrics::default(),
         }
     }
 
@@ -194,6 +207,12 @@ impl Metrics {
             response_p50_ns: self.budget.response().quantile(0.5),
             response_p99_ns: self.budget.response().quantile(0.99),
             response_max_ns: self.budget.response().max(),
+            chain_versions: self.chain.versions,
+            chain_states: self.chain.states,
+            chain_delta_s: self.chain.delta_s,
+            chain_swap_p50_ns: self.chain.swap.quantile(0.5),
+            chain_swap_p99_ns: self.chain.swap.quantile(0.99),
+            chain_mass_lost_max: self.chain.mass_lost_max,
             ..StageStats::default()
         };
         for (slot, (hop, h)) in s.hops.iter_mut().zip(&self.hops) {
