@@ -436,6 +436,27 @@ impl Chain {
         Ok(())
     }
 
+    /// ConnectState (Alg. 2.2) again for slot `i` with the current n (e.g.
+    /// after some of its neighbours were retired; see [`super::retire`]).
+    pub fn reconnect(&mut self, i: usize) -> Result<(), ChainError> {
+        if i >= self.len() {
+            return Err(ChainError::State("slot out of range"));
+        }
+        self.connect(i)
+    }
+
+    /// Make the next new state's id at least `next` (ids are never reused,
+    /// also across [`Self::from_view`] of a chain whose newest states were
+    /// removed).
+    pub fn reserve_ids(&mut self, next: u32) {
+        self.next_id = self.next_id.max(next);
+    }
+
+    /// The id the next new state gets.
+    pub fn next_id(&self) -> u32 {
+        self.next_id
+    }
+
     /// Import a snapshot (e.g. one received from another process); the
     /// model supplies the caches needed to keep growing it.
     pub fn from_view<M: SdeModel + ?Sized>(

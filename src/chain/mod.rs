@@ -28,7 +28,9 @@ pub mod index;
 pub mod kernel;
 pub mod linalg;
 pub mod nnls;
+pub mod retire;
 pub mod sample;
+pub mod snapshot;
 pub mod storage;
 
 pub use build::{Chain, ChainStats};

@@ -400,7 +400,19 @@ fn drive(
             return Ok(());
         }
         for s in stages.iter_mut() {
+            // Refine is anytime work: the filter keeps its last chain, so
+            // losing it does not stop the run (issue 4).
+            if s.kind == StageKind::Refine && s.exit.is_some() {
+                continue;
+            }
             if s.poll_exit() {
+                if s.kind == StageKind::Refine {
+                    eprintln!(
+                        "warning: the refine stage exited ({}); filtering goes on with the last chain",
+                        s.exit.as_ref().map(describe).unwrap_or_default()
+                    );
+                    continue;
+                }
                 bail!(
                     "the {} stage exited unexpectedly ({})",
                     s.kind.name(),

@@ -8,22 +8,31 @@
 //! (which it takes as the time of the prior). A step the filter refuses is
 //! counted by reason: a refused prediction publishes nothing, a refused
 //! update publishes the prediction flagged `UPDATE_REFUSED`.
+//!
+//! The `chain` backend (issue 4) runs [`LiveChainFilter`] on the snapshots
+//! of the refine stage's `chain` slice channel: after each belief is
+//! published (off the sensor→belief path), a received version is prepared
+//! for at most `filter.chain.prepare_budget_us` and swapped in when ready;
+//! the swap durations, versions, size, δ and the largest mass lost in a
+//! remap go into the stage's `chain_*` stats. An EKF answers until the first
+//! snapshot arrives; if refine stops, filtering goes on with the last one.
 
 use super::{
     guarded, secs_since, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort,
 };
 use crate::belief::Gaussian;
 use crate::filter::ekf::Ekf;
+use crate::filter::live_chain::{LiveChainFilter, SwapInfo};
 use crate::filter::pf::Pf;
 use crate::filter::ukf::Ukf;
 use crate::filter::{BayesFilter, FilterError};
 use crate::ipc::{
-    belief_status, run_loop, Belief, Bus, Control, Hop, Observation, Publisher, StageKind,
-    StageStats, Subscriber, Wake,
+    belief_status, run_loop, Belief, Bus, Control, Hop, Observation, Publisher, SliceSample,
+    SliceSubscriber, StageKind, StageStats, Subscriber, Wake, Wakeable,
 };
 use crate::model::{Measurement, ObsMask, SdeModel};
 use crate::pipeline::config::FilterBackend;
-use crate::pipeline::PipelineConfig;
+use crate::pipeline::{AnyModel, PipelineConfig};
 use crate::rt::Clock;
 use crate::MAX_CONTROL;
 use std::sync::atomic::AtomicBool;
@@ -39,16 +48,19 @@ pub enum Reason {
     /// Every particle/hypothesis has zero likelihood.
     Degenerate = 3,
     Numerical = 4,
+    /// A chain snapshot that failed validation (chain backend).
+    Snapshot = 5,
 }
 
 impl Reason {
     /// Every reason, in index order.
-    pub const ALL: [Reason; 5] = [
+    pub const ALL: [Reason; 6] = [
         Reason::TimeBackwards,
         Reason::Dimension,
         Reason::NonFinite,
         Reason::Degenerate,
         Reason::Numerical,
+        Reason::Snapshot,
     ];
 
     /// Report name.
@@ -59,6 +71,7 @@ impl Reason {
             Reason::NonFinite => "non_finite",
             Reason::Degenerate => "degenerate",
             Reason::Numerical => "numerical",
+            Reason::Snapshot => "snapshot",
         }
     }
 
@@ -80,6 +93,8 @@ pub struct FilterPorts {
     pub control: Subscriber<Control>,
     pub belief: Publisher<Belief>,
     pub stats: StatsPort,
+    /// Chain snapshots (chain backend only).
+    pub chain: Option<SliceSubscriber<u64>>,
 }
 
 impl FilterPorts {
@@ -90,6 +105,16 @@ impl FilterPorts {
             control: bus.subscriber_with(1, false)?,
             belief: bus.publisher()?,
             stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
+            chain: if cfg.filter.backend == FilterBackend::Chain {
+                let dim = cfg.model()?.dims().state;
+                Some(bus.slice_subscriber(
+                    super::refine::CHAIN_CHANNEL,
+                    &super::refine::chain_qos(cfg, dim),
+                    true,
+                )?)
+            } else {
+                None
+            },
         })
     }
 }
@@ -114,13 +139,92 @@ pub fn make_filter(cfg: &PipelineConfig, t0: f64) -> Result<Box<dyn BayesFilter>
             pf.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(pf.seed));
             Box::new(Pf::new(model, &pf, &prior, t0).map_err(|e| build(&e))?)
         }
-        FilterBackend::Ekf => {
+        // The chain backend's fallback until its first snapshot.
+        FilterBackend::Ekf | FilterBackend::Chain => {
             Box::new(Ekf::new(model, &cfg.filter.ekf, &prior, t0).map_err(|e| build(&e))?)
         }
         FilterBackend::Ukf => {
             Box::new(Ukf::new(model, &cfg.filter.ukf, &prior, t0).map_err(|e| build(&e))?)
         }
     })
+}
+
+/// The filter of a stage: a plain backend, or the chain filter on live
+/// snapshots.
+pub enum Backend {
+    Plain(Box<dyn BayesFilter>),
+    Chain(Box<LiveChainFilter<AnyModel, SliceSample<u64>>>),
+}
+
+impl Backend {
+    /// Build the configured backend at `t0`.
+    pub fn new(cfg: &PipelineConfig, t0: f64) -> Result<Self, StageError> {
+        let f = make_filter(cfg, t0)?;
+        Ok(match cfg.filter.backend {
+            FilterBackend::Chain => Backend::Chain(Box::new(LiveChainFilter::new(
+                cfg.model()?,
+                f,
+                cfg.refine.max_states,
+                &prior(cfg),
+                t0,
+            ))),
+            _ => Backend::Plain(f),
+        })
+    }
+    fn dims(&self) -> crate::model::Dims {
+        match self {
+            Backend::Plain(f) => f.dims(),
+            Backend::Chain(f) => f.dims(),
+        }
+    }
+    fn predict(&mut self, t: f64, u: &[f64]) -> Result<(), FilterError> {
+        match self {
+            Backend::Plain(f) => f.predict(t, u),
+            Backend::Chain(f) => f.predict(t, u),
+        }
+    }
+    fn update(&mut self, m: &Measurement) -> Result<crate::filter::UpdateInfo, FilterError> {
+        match self {
+            Backend::Plain(f) => f.update(m),
+            Backend::Chain(f) => f.update(m),
+        }
+    }
+    fn belief(&self) -> Gaussian {
+        match self {
+            Backend::Plain(f) => f.belief(),
+            Backend::Chain(f) => f.belief(),
+        }
+    }
+}
+
+/// Take the newest snapshot from `sub` (if any) and prepare a pending one
+/// for at most `budget`; record swaps in `m`.
+fn chain_work(
+    f: &mut LiveChainFilter<AnyModel, SliceSample<u64>>,
+    sub: &SliceSubscriber<u64>,
+    budget: Duration,
+    m: &mut Metrics,
+) -> Result<(), StageError> {
+    if let Some(s) = sub.receive_sample()? {
+        if f.offer(s).is_err() {
+            m.reject(Reason::Snapshot as usize);
+        }
+    }
+    match f.advance(budget) {
+        Ok(Some(info)) => record_swap(m, &info),
+        Ok(None) => {}
+        Err(_) => m.reject(Reason::Snapshot as usize),
+    }
+    Ok(())
+}
+
+fn record_swap(m: &mut Metrics, info: &SwapInfo) {
+    let c = &mut m.chain;
+    c.versions += 1;
+    c.states = info.states as u64;
+    c.delta_s = info.delta;
+    c.swap.record(info.swap_ns.max(1));
+    c.mass_lost_max = c.mass_lost_max.max(info.mass_lost);
 }
 
 /// Run the filter until `stop`; returns its final stats.
@@ -136,7 +240,8 @@ pub fn run(
         &[Hop::IngestToFilter, Hop::SensorToBelief],
         (cfg.run.warmup_s * 1e9) as u64,
     );
-    let mut filter = make_filter(cfg, 0.0)?;
+    let mut filter = Backend::new(cfg, 0.0)?;
+    let prepare = Duration::from_secs_f64(cfg.filter.chain.prepare_budget_us * 1e-6);
     let dims = filter.dims();
     let model_std = {
         let mut s = [0.0; crate::MAX_OBS];
@@ -156,7 +261,12 @@ pub fn run(
     let control = &ports.control;
     let belief = &mut ports.belief;
     let stats = &mut ports.stats;
-    run_loop(&[obs_sub], rt.wake_mode(), tick, stop, |w| {
+    let chain_sub = ports.chain.as_ref();
+    let mut inputs: Vec<&dyn Wakeable> = vec![obs_sub];
+    if let Some(c) = chain_sub {
+        inputs.push(c);
+    }
+    run_loop(&inputs, rt.wake_mode(), tick, stop, |w| {
         guarded(&mut err, || {
             if w == Wake::Data {
                 while let Some(o) = obs_sub.receive()? {
@@ -214,7 +324,14 @@ pub fn run(
                     m.processed += 1;
                     m.budget.record_released(o.header.t_pub_ns, t_in, now);
                     m.record_hops(&out.trace);
+                    if let (Backend::Chain(f), Some(sub)) = (&mut filter, chain_sub) {
+                        chain_work(f, sub, prepare, &mut m)?;
+                    }
                 }
+            }
+            // Idle wake-ups (a snapshot arrived, or a tick) prepare too.
+            if let (Backend::Chain(f), Some(sub)) = (&mut filter, chain_sub) {
+                chain_work(f, sub, prepare, &mut m)?;
             }
             stats.tick(&m, clock.now_ns())?;
             Ok(())

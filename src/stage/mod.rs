@@ -113,6 +113,18 @@ pub struct Metrics {
     /// Control only: ∫[q(x̂) + w‖u‖²]dt and T after the warm-up.
     pub cost_integral: f64,
     pub cost_time: f64,
+    /// Chain figures (filter with the chain backend, refine).
+    pub chain: ChainMetrics,
+}
+
+/// Chain figures of a stage (see the `chain_*` fields of [`StageStats`]).
+#[derive(Debug, Default)]
+pub struct ChainMetrics {
+    pub versions: u64,
+    pub states: u64,
+    pub delta_s: f64,
+    pub swap: LatencyHist,
+    pub mass_lost_max: f64,
 }
 
 impl Metrics {
@@ -135,6 +147,7 @@ impl Metrics {
             waypoints_reached: 0,
             cost_integral: 0.0,
             cost_time: 0.0,
+            chain: ChainMetrics::default(),
         }
     }
 
@@ -205,6 +218,12 @@ impl Metrics {
                 0.0
             },
             control_cost_time_s: self.cost_time,
+            chain_versions: self.chain.versions,
+            chain_states: self.chain.states,
+            chain_delta_s: self.chain.delta_s,
+            chain_swap_p50_ns: self.chain.swap.quantile(0.5),
+            chain_swap_p99_ns: self.chain.swap.quantile(0.99),
+            chain_mass_lost_max: self.chain.mass_lost_max,
             ..StageStats::default()
         };
         for (slot, (hop, h)) in s.hops.iter_mut().zip(&self.hops) {
