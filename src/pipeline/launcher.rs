@@ -132,8 +132,8 @@ struct Stage {
     heartbeat_misses: u64,
     chaos_kills: u64,
     /// Counters of earlier incarnations (processed, dropped, rejected,
-    /// deadline misses, late).
-    earlier: [u64; 5],
+    /// deadline misses, late, controls received, processed after warm-up).
+    earlier: [u64; 7],
     /// Causes of the deaths of earlier incarnations.
     deaths: Vec<String>,
 }
@@ -208,7 +208,7 @@ fn spawn(
         chaos_kill_ns: None,
         heartbeat_misses: 0,
         chaos_kills: 0,
-        earlier: [0; 5],
+        earlier: [0; 7],
         deaths: Vec::new(),
     })
 }
@@ -448,6 +448,8 @@ fn supervise(
                     st.rejected += s.earlier[2];
                     st.deadline_misses += s.earlier[3];
                     st.late += s.earlier[4];
+                    st.controls_received += s.earlier[5];
+                    st.processed_after_warmup += s.earlier[6];
                 }
                 (
                     k,
@@ -576,6 +578,8 @@ fn on_death(ctx: &mut Ctx, mon: &mut Monitor, s: &mut Stage) -> Result<()> {
         s.earlier[2] += st.rejected;
         s.earlier[3] += st.deadline_misses;
         s.earlier[4] += st.late;
+        s.earlier[5] += st.controls_received;
+        s.earlier[6] += st.processed_after_warmup;
     }
     mon.forget(s.kind);
     // iceoryx2 dead-node cleanup: the dead process's node, its ports and
