@@ -195,6 +195,9 @@ pub fn run_with(
             if w == Wake::Data {
                 while let Some(o) = obs_sub.receive()? {
                     let t_in = clock.now_ns();
+                    // An endless backlog must not starve the report (the
+                    // supervisor's heartbeat).
+                    stats.tick(&m, t_in)?;
                     m.dropped += seq.observe(o.header.seq);
                     if max_age_ns > 0
                         && t_in.saturating_sub(o.header.t_pub_ns) > max_age_ns
