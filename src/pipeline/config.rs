@@ -226,6 +226,16 @@ pub struct FilterConfig {
     pub ukf: UkfConfig,
     #[serde(default)]
     pub chain: ChainFilterConfig,
+    /// Freshest-data policy under overload: an observation that waited
+    /// longer than this (µs since ingest published it) while a newer one is
+    /// queued is skipped and counted as dropped, so a filter slower than the
+    /// sensor keeps its latency bounded (0: filter every observation).
+    #[serde(default = "default_max_obs_age")]
+    pub max_obs_age_us: f64,
+}
+
+fn default_max_obs_age() -> f64 {
+    50_000.0
 }
 
 /// `[filter.chain]`: the chain backend (issue 4).
@@ -481,6 +491,10 @@ pub struct StageRtConfig {
     /// Spin time of `wake = "spin"` (µs).
     #[serde(default = "default_spin")]
     pub spin_us: u64,
+    /// Supervision: restart policy and heartbeat deadline
+    /// (`[stages.<name>.restart]`, see [`super::supervisor`]).
+    #[serde(default)]
+    pub restart: super::supervisor::RestartPolicy,
 }
 
 fn default_spin() -> u64 {
@@ -497,6 +511,7 @@ impl Default for StageRtConfig {
             budget_us: 0.0,
             wake: WakeKind::Event,
             spin_us: default_spin(),
+            restart: Default::default(),
         }
     }
 }
@@ -852,6 +867,9 @@ impl PipelineConfig {
         f.ukf
             .validate(dims.state)
             .map_err(|e| ConfigError::new(format!("filter.ukf.{}", e.key), e.problem))?;
+        if !(f.max_obs_age_us.is_finite() && f.max_obs_age_us >= 0.0) {
+            return Err(ConfigError::new("filter.max_obs_age_us", "must be >= 0"));
+        }
 
         self.validate_control(&model)?;
 
@@ -877,6 +895,9 @@ impl PipelineConfig {
             if !(s.budget_us.is_finite() && s.budget_us >= 0.0) {
                 return Err(ConfigError::new(format!("{key}.budget_us"), "must be >= 0"));
             }
+            s.restart
+                .validate()
+                .map_err(|(k, p)| ConfigError::new(format!("{key}.restart.{k}"), p))?;
         }
         Ok(())
     }

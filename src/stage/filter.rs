@@ -32,6 +32,7 @@ use crate::ipc::{
 };
 use crate::model::{Measurement, ObsMask, SdeModel};
 use crate::pipeline::config::FilterBackend;
+use crate::pipeline::supervisor_resume::ResumeBelief;
 use crate::pipeline::{AnyModel, PipelineConfig};
 use crate::rt::Clock;
 use crate::MAX_CONTROL;
@@ -127,8 +128,18 @@ pub fn prior(cfg: &PipelineConfig) -> Gaussian {
 /// Build the configured backend at time `t0` from the prior. The filter's
 /// random stream is seeded from `run.seed` mixed with `filter.pf.seed`.
 pub fn make_filter(cfg: &PipelineConfig, t0: f64) -> Result<Box<dyn BayesFilter>, StageError> {
+    make_filter_from(cfg, &prior(cfg), t0)
+}
+
+/// [`make_filter`] from an explicit prior (a restart resumes from the last
+/// published belief).
+pub fn make_filter_from(
+    cfg: &PipelineConfig,
+    prior: &Gaussian,
+    t0: f64,
+) -> Result<Box<dyn BayesFilter>, StageError> {
     let model = cfg.model()?;
-    let prior = prior(cfg);
+    let prior = *prior;
     let build = |e: &dyn std::fmt::Display| StageError::Build {
         what: "filter",
         reason: e.to_string(),
@@ -157,15 +168,16 @@ pub enum Backend {
 }
 
 impl Backend {
-    /// Build the configured backend at `t0`.
-    pub fn new(cfg: &PipelineConfig, t0: f64) -> Result<Self, StageError> {
-        let f = make_filter(cfg, t0)?;
+    /// Build the configured backend at `t0` from `start` (the prior, or the
+    /// belief a restarted stage resumes from).
+    pub fn new(cfg: &PipelineConfig, start: &Gaussian, t0: f64) -> Result<Self, StageError> {
+        let f = make_filter_from(cfg, start, t0)?;
         Ok(match cfg.filter.backend {
             FilterBackend::Chain => Backend::Chain(Box::new(LiveChainFilter::new(
                 cfg.model()?,
                 f,
                 cfg.refine.max_states,
-                &prior(cfg),
+                start,
                 t0,
             ))),
             _ => Backend::Plain(f),
@@ -229,10 +241,28 @@ fn record_swap(m: &mut Metrics, info: &SwapInfo) {
 
 /// Run the filter until `stop`; returns its final stats.
 pub fn run(
+    ports: FilterPorts,
+    cfg: &PipelineConfig,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+) -> Result<StageStats, StageError> {
+    run_with(ports, cfg, clock, stop, None)
+}
+
+/// [`run`] resuming from the last published belief (after a restart): the
+/// filter starts from that Gaussian at its time of validity, which becomes
+/// its time origin, and continues the belief numbering.
+///
+/// Overload (`filter.max_obs_age_us` > 0): an observation that waited
+/// longer than that while a newer one is queued is skipped and counted as
+/// dropped — the freshest data wins, so latency stays bounded by about one
+/// filter step plus that age when the sensor outpaces the filter.
+pub fn run_with(
     mut ports: FilterPorts,
     cfg: &PipelineConfig,
     clock: &dyn Clock,
     stop: &AtomicBool,
+    resume: Option<&ResumeBelief>,
 ) -> Result<StageStats, StageError> {
     let rt = cfg.stages.get(StageKind::Filter);
     let mut m = Metrics::new(
@@ -240,7 +270,11 @@ pub fn run(
         &[Hop::IngestToFilter, Hop::SensorToBelief],
         (cfg.run.warmup_s * 1e9) as u64,
     );
-    let mut filter = Backend::new(cfg, 0.0)?;
+    // A restart resumes from the last published belief (the chain backend
+    // spreads it over the first snapshot it receives).
+    let resumed = resume.and_then(|b| b.gaussian().map(|g| (b, g)));
+    let start = resumed.as_ref().map_or_else(|| prior(cfg), |(_, g)| *g);
+    let mut filter = Backend::new(cfg, &start, 0.0)?;
     let prepare = Duration::from_secs_f64(cfg.filter.chain.prepare_budget_us * 1e-6);
     let dims = filter.dims();
     let model_std = {
@@ -249,10 +283,11 @@ pub fn run(
         s
     };
     let mut u = [0.0; MAX_CONTROL];
-    let mut epoch: Option<u64> = None;
+    let mut epoch: Option<u64> = resumed.as_ref().map(|(b, _)| b.t_valid_ns);
     let mut seq = SeqTracker::default();
     let mut out = Belief::default();
-    let mut out_seq = 0u64;
+    let mut out_seq = resumed.as_ref().map(|(b, _)| b.seq + 1).unwrap_or(0);
+    let max_age_ns = (cfg.filter.max_obs_age_us * 1e3) as u64;
     let mut err = None;
     ports.stats.publish(&m, clock.now_ns(), false)?;
     let tick = Duration::from_secs_f64(cfg.run.stats_period_s.min(0.1));
@@ -271,12 +306,27 @@ pub fn run(
             if w == Wake::Data {
                 while let Some(o) = obs_sub.receive()? {
                     let t_in = clock.now_ns();
+                    // An endless backlog must not starve the report (the
+                    // supervisor's heartbeat).
+                    stats.tick(&m, t_in)?;
                     m.dropped += seq.observe(o.header.seq);
+                    if max_age_ns > 0
+                        && t_in.saturating_sub(o.header.t_pub_ns) > max_age_ns
+                        && obs_sub.has_data()
+                    {
+                        m.dropped += 1; // stale, and a fresher one waits
+                        continue;
+                    }
+                    let epoch_ns = *epoch.get_or_insert(o.header.t_valid_ns);
+                    if o.header.t_valid_ns < epoch_ns {
+                        // Measured before the resumed belief: too old.
+                        m.reject(Reason::TimeBackwards as usize);
+                        continue;
+                    }
                     if let (Some(c), _) = control.latest()? {
                         let n = (c.dim as usize).min(dims.control);
                         u[..n].copy_from_slice(&c.u[..n]);
                     }
-                    let epoch_ns = *epoch.get_or_insert(o.header.t_valid_ns);
                     let t = secs_since(epoch_ns, o.header.t_valid_ns);
                     if let Err(e) = filter.predict(t, &u[..dims.control]) {
                         m.reject(Reason::of(&e) as usize);

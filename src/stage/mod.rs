@@ -23,6 +23,7 @@ use crate::ipc::{
     stats_flags, Bus, Hop, HopStats, IpcError, Publisher, StageKind, StageStats, Trace, STATS_HOPS,
     STATS_REASONS,
 };
+use crate::pipeline::supervisor_resume::Resume;
 use crate::pipeline::{ConfigError, PipelineConfig};
 use crate::rt::{Budget, Clock, LatencyHist, RtApplied};
 use std::sync::atomic::AtomicBool;
@@ -317,15 +318,37 @@ pub fn run_stage(
     clock: &dyn Clock,
     stop: &AtomicBool,
 ) -> Result<StageStats, StageError> {
+    run_stage_with(bus, cfg, id, clock, stop, &Resume::default())
+}
+
+/// [`run_stage`] resuming from `resume` (a restart by the supervisor; see
+/// [`crate::pipeline::supervisor_resume`]).
+pub fn run_stage_with(
+    bus: &BusConfig,
+    cfg: &PipelineConfig,
+    id: StageIdentity,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+    resume: &Resume,
+) -> Result<StageStats, StageError> {
     let b = Bus::open(bus, id.kind.name())?;
     match id.kind {
         StageKind::Ingest => ingest::run(ingest::IngestPorts::open(&b, id, cfg)?, cfg, clock, stop),
-        StageKind::Filter => filter::run(filter::FilterPorts::open(&b, id, cfg)?, cfg, clock, stop),
-        StageKind::Control => {
-            control::run(control::ControlPorts::open(&b, id, cfg)?, cfg, clock, stop)
+        StageKind::Filter => {
+            let ports = filter::FilterPorts::open(&b, id, cfg)?;
+            filter::run_with(ports, cfg, clock, stop, resume.belief.as_ref())
         }
+        StageKind::Control => {
+            let ports = control::ControlPorts::open(&b, id, cfg)?;
+            control::run_with(ports, cfg, clock, stop, resume.control.as_ref())
+        }
+        // Refine's restart hook: `resume.state_dir` / `Resume::read_checkpoint`
+        // (its chain snapshot, issue 4).
         StageKind::Refine => refine::run(refine::RefinePorts::open(&b, id, cfg)?, cfg, clock, stop),
-        StageKind::Plant => plant::run(plant::PlantPorts::open(&b, id, cfg)?, cfg, clock, stop),
+        StageKind::Plant => {
+            let ports = plant::PlantPorts::open(&b, id, cfg)?;
+            plant::run_resumed(ports, cfg, clock, stop, None, resume)
+        }
     }
 }
 
