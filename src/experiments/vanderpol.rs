@@ -63,6 +63,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     )?;
     let uniform_fraction = p.f64(&mut rep, "uniform_fraction", 0.1)?;
     let kappa_drift = p.f64(&mut rep, "kappa_drift", 2.0)?;
+    let step = p.f64(&mut rep, "step_s", dt)?;
     p.finish()?;
     rep.param("mu", 2.0);
     rep.param("prior", "N((0.5, 0), 0.2^2 I)");
@@ -96,6 +97,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         if kernel != "gaussian" {
             cfg.kappa_drift = kappa_drift;
         }
+        cfg.step = (step > 0.0).then_some(step);
         let t0 = std::time::Instant::now();
         let mut rng = stream(args.seed, 9_000 + n as u64);
         let pts = if sampling == "uniform" {

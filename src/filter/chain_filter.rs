@@ -593,6 +593,10 @@ mod tests {
     /// RMS over steps of (mean error, cov error) of the chain filter against
     /// the exact Kalman filter on the same observation record.
     fn gap_to_kalman(n: usize, seed: u64) -> (f64, f64) {
+        gap_to_kalman_with(n, seed, ChainConfig::moment_matched(2))
+    }
+
+    fn gap_to_kalman_with(n: usize, seed: u64, cfg: ChainConfig) -> (f64, f64) {
         let model = ou2();
         let dt = 0.05;
         let prior = Gaussian::diagonal(&[0.8, -0.4], &[0.3, 0.3]);
@@ -600,7 +604,7 @@ mod tests {
         let mut kf = Kalman::new(model.clone(), &prior, 0.0).unwrap();
         let mut cf = ChainFilter::from_samples(
             model.clone(),
-            ChainConfig::moment_matched(2),
+            cfg,
             &Sampler::Uniform,
             n,
             dt,
@@ -700,6 +704,26 @@ mod tests {
         }
         // At 30,000 states the posterior mean is within a few percent of the
         // posterior std (≈ 0.13) of the exact answer.
+        assert!(last.0 < 0.02, "{last:?}");
+    }
+
+    #[test]
+    fn advected_chain_filter_converges_to_kalman_as_n_grows() {
+        // The advected construction (Δt = δ = τ = the observation period):
+        // same Kalman–Bucy check as above.
+        let mut last = (f64::INFINITY, f64::INFINITY);
+        for n in [300usize, 3000, 30000] {
+            let mut g = (0.0, 0.0);
+            for s in 0..3 {
+                let cfg = ChainConfig::moment_matched(2).with_step(0.05);
+                let e = gap_to_kalman_with(n, 10 + s, cfg);
+                g.0 += e.0 / 3.0;
+                g.1 += e.1 / 3.0;
+            }
+            eprintln!("advected n={n}: mean gap {:.4}, cov gap {:.5}", g.0, g.1);
+            assert!(g.0 < last.0 && g.1 < last.1, "n={n}: {g:?} vs {last:?}");
+            last = g;
+        }
         assert!(last.0 < 0.02, "{last:?}");
     }
 }
