@@ -148,6 +148,16 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
                 Duration::from_millis(100),
             );
         }
+        // The same two-second count with refine alive: the reference the
+        // counts after the kill are held to (the controller's rate depends
+        // on the machine and the build, not on refine).
+        let (nb0, nc0) = watch(
+            &beliefs,
+            &controls,
+            &stats,
+            &mut filter,
+            Duration::from_secs(2),
+        );
         let before = filter.unwrap();
         let refine = children.iter_mut().find(|(k, _)| *k == "refine").unwrap();
         refine.1.kill().unwrap(); // SIGKILL
@@ -168,9 +178,13 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
             Duration::from_secs(2),
         );
         let after = filter.unwrap();
-        // 100 Hz sensor: about 200 of each in two seconds.
-        assert!(nb > 100, "beliefs after the kill: {nb}");
-        assert!(nc > 50, "controls after the kill: {nc}");
+        // 100 Hz sensor: about 200 beliefs in two seconds; controls keep
+        // flowing at (at least half) the rate they had before the kill.
+        assert!(nb > 100, "beliefs after the kill: {nb} (before: {nb0})");
+        assert!(
+            nc > 0 && 2 * nc >= nc0,
+            "controls after the kill: {nc}, before: {nc0}"
+        );
         assert!(after.processed > before.processed + 100);
         // Still on the chain (the last snapshot stays mapped while held).
         assert!(after.chain_states > 0 && after.chain_versions >= before.chain_versions);
