@@ -13,6 +13,30 @@ use std::time::{Duration, Instant};
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
+/// Removes the run's shared memory when dropped, also when an assertion
+/// fails mid-test.
+struct Teardown(String);
+
+impl Drop for Teardown {
+    fn drop(&mut self) {
+        let _ = cleanup::remove_prefix(&self.0);
+    }
+}
+
+/// Stages started by hand; those still running are killed when dropped.
+struct Stages(Vec<(&'static str, Child)>);
+
+impl Drop for Stages {
+    fn drop(&mut self) {
+        for (_, c) in &mut self.0 {
+            if matches!(c.try_wait(), Ok(None)) {
+                let _ = c.kill();
+            }
+            let _ = c.wait();
+        }
+    }
+}
+
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
@@ -120,6 +144,7 @@ fn watch(
 fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let prefix = cleanup::run_prefix();
+    let _teardown = Teardown(prefix.clone());
     let bus_cfg = BusConfig {
         prefix: prefix.clone(),
         instance: "ship".into(),
@@ -129,12 +154,14 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
         let beliefs = bus.subscriber_with::<Belief>(256, false).unwrap();
         let controls = bus.subscriber_with::<Control>(256, false).unwrap();
         let stats = bus.subscriber_with::<StageStats>(64, false).unwrap();
-        let mut children: Vec<(&str, Child)> = ["control", "refine", "filter", "ingest"]
-            .into_iter()
-            .map(|k| (k, spawn(k, &prefix)))
-            .collect();
+        let mut children = Stages(
+            ["control", "refine", "filter", "ingest"]
+                .into_iter()
+                .map(|k| (k, spawn(k, &prefix)))
+                .collect(),
+        );
         std::thread::sleep(Duration::from_millis(500));
-        children.push(("plant", spawn("plant", &prefix)));
+        children.0.push(("plant", spawn("plant", &prefix)));
         // Until the filter runs on the live chain.
         let mut filter = None;
         let t0 = Instant::now();
@@ -159,7 +186,7 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
             Duration::from_secs(2),
         );
         let before = filter.unwrap();
-        let refine = children.iter_mut().find(|(k, _)| *k == "refine").unwrap();
+        let refine = children.0.iter_mut().find(|(k, _)| *k == "refine").unwrap();
         refine.1.kill().unwrap(); // SIGKILL
         refine.1.wait().unwrap();
         // Let the dead publisher go, then count for two seconds.
@@ -188,7 +215,7 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
         assert!(after.processed > before.processed + 100);
         // Still on the chain (the last snapshot stays mapped while held).
         assert!(after.chain_states > 0 && after.chain_versions >= before.chain_versions);
-        for (k, c) in children.iter_mut().filter(|(k, _)| *k != "refine") {
+        for (k, c) in children.0.iter_mut().filter(|(k, _)| *k != "refine") {
             // SAFETY: signalling a child we spawned and have not reaped.
             unsafe { libc::kill(c.id() as i32, libc::SIGTERM) };
             let st = c.wait().unwrap();
