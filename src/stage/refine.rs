@@ -29,6 +29,9 @@
 //! port settings. The stage runs at the lowest priority and never blocks
 //! the filter: the belief channel is latest-value and a slow filter only
 //! misses intermediate versions.
+//!
+//! With a filter backend other than `chain` nobody reads the chain: refine
+//! then only follows the beliefs and reports (no rounds, no snapshots).
 
 use super::{guarded, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort};
 use crate::belief::Gaussian;
@@ -356,7 +359,12 @@ pub fn run(
     let work = Duration::from_secs_f64(cfg.refine.work_ms * 1e-3);
     let publish_ns = (cfg.refine.publish_period_ms * 1e6) as u64;
     let period_ns = (cfg.refine.period_ms * 1e6) as u64;
-    let mut next_work = 0u64;
+    // The chain has one consumer, the filter's chain backend: with another
+    // backend refine only follows the beliefs and reports, instead of
+    // spending a core's worth of rounds (and cache and memory bandwidth the
+    // real-time stages share) on a chain nobody reads.
+    let active = cfg.filter.backend == crate::pipeline::config::FilterBackend::Chain;
+    let mut next_work = if active { 0u64 } else { u64::MAX };
     let mut next_publish = 0u64;
     let belief = &ports.belief;
     let chain_pub = &mut ports.chain;
