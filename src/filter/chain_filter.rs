@@ -38,7 +38,7 @@
 
 use std::cell::Cell;
 
-use crate::belief::Gaussian;
+use crate::belief::{Gaussian, WeightedMoments};
 use crate::chain::linalg::{backward_sub_t, cholesky, forward_sub};
 use crate::chain::{Chain, ChainError, PropagationKernel, Sampler, TimeEqualized};
 use crate::filter::{check_measurement, check_predict, BayesFilter, FilterError, UpdateInfo};
@@ -372,44 +372,16 @@ impl<M: SdeModel> ChainFilter<M> {
 
     fn moments(&self) -> Gaussian {
         let d = self.dims.state;
-        let mut g = Gaussian::zeros(d);
-        let c = self.prior.mean; // reference point for numerical stability
-        let mut m1 = [0.0; MAX_STATE];
-        let mut m2 = [0.0; MAX_STATE * MAX_STATE];
-        let mut tot = 0.0;
+        // Offsets from the prior mean, for numerical stability.
+        let mut acc = WeightedMoments::new(&self.prior.mean[..d]);
         for &zi in &self.active {
             let i = zi as usize;
             let w = self.phi[i];
-            if w == 0.0 {
-                continue;
-            }
-            tot += w;
-            let z = self.chain.state(i);
-            let mut dz = [0.0; MAX_STATE];
-            for a in 0..d {
-                dz[a] = z[a] - c[a];
-                m1[a] += w * dz[a];
-            }
-            for a in 0..d {
-                let wa = w * dz[a];
-                for b in a..d {
-                    m2[a + b * d] += wa * dz[b];
-                }
+            if w != 0.0 {
+                acc.add(w, self.chain.state(i));
             }
         }
-        let tot = tot.max(1e-300);
-        for a in 0..d {
-            m1[a] /= tot;
-            g.mean[a] = c[a] + m1[a];
-        }
-        for a in 0..d {
-            for b in a..d {
-                let v = m2[a + b * d] / tot - m1[a] * m1[b];
-                g.set_cov(a, b, v);
-                g.set_cov(b, a, v);
-            }
-        }
-        g
+        acc.gaussian()
     }
 }
 

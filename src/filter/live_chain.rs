@@ -50,7 +50,7 @@
 use std::cell::Cell;
 use std::time::{Duration, Instant};
 
-use crate::belief::Gaussian;
+use crate::belief::{Gaussian, WeightedMoments};
 use crate::chain::linalg::{backward_sub_t, cholesky, forward_sub};
 use crate::chain::snapshot::{SnapshotError, SnapshotView};
 use crate::filter::{check_measurement, check_predict, BayesFilter, FilterError, UpdateInfo};
@@ -583,42 +583,13 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             return self.fallback.belief();
         };
         let view = SnapshotView::parse(act.snap.as_ref()).expect("active parses");
-        let mut g = Gaussian::zeros(d);
-        let c = self.last.mean;
-        let mut m1 = [0.0; MAX_STATE];
-        let mut m2 = [0.0; MAX_STATE * MAX_STATE];
-        let mut tot = 0.0;
+        let mut acc = WeightedMoments::new(&self.last.mean[..d]);
         for (i, &w) in self.phi.iter().enumerate() {
-            if w == 0.0 {
-                continue;
-            }
-            tot += w;
-            let z = view.state(i);
-            let mut dz = [0.0; MAX_STATE];
-            for a in 0..d {
-                dz[a] = z[a] - c[a];
-                m1[a] += w * dz[a];
-            }
-            for a in 0..d {
-                let wa = w * dz[a];
-                for b in a..d {
-                    m2[a + b * d] += wa * dz[b];
-                }
+            if w != 0.0 {
+                acc.add(w, view.state(i));
             }
         }
-        let tot = tot.max(1e-300);
-        for a in 0..d {
-            m1[a] /= tot;
-            g.mean[a] = c[a] + m1[a];
-        }
-        for a in 0..d {
-            for b in a..d {
-                let v = m2[a + b * d] / tot - m1[a] * m1[b];
-                g.set_cov(a, b, v);
-                g.set_cov(b, a, v);
-            }
-        }
-        g
+        acc.gaussian()
     }
 
     /// Time of the belief.
