@@ -5,11 +5,20 @@
 //! k = ⌈1.5 log n⌉ (floored at 1 + d + d(d+1)/2 + 1); the mean out-degree of
 //! each chain is printed to stderr. d = 2: Van der Pol; d = 4: the ship.
 //!
-//! `cargo bench --bench chain` (BENCH_FULL=1 adds n = 10⁵ to every group).
+//! `filter_step_sim` runs the filter on the observations of a simulated
+//! trajectory (prior and x(0) as in the ship / Van der Pol experiments,
+//! observations every 0.01 s; the filter is reset to the prior when the
+//! trajectory ends), and prints per-step percentiles and the mean support.
+//!
+//! `cargo bench --bench chain` (BENCH_FULL=1 adds n = 10⁵ to every group;
+//! BENCH_CPU=1 measures the thread's CPU time instead of wall time, the
+//! one-core figure on a machine shared with other jobs).
 
 use std::time::{Duration, Instant};
 
+use beliefbus::belief::Gaussian;
 use beliefbus::chain::{Chain, ChainConfig, KernelKind, Sampler};
+use beliefbus::experiments::chain_util::{draw_from, simulate};
 use beliefbus::filter::chain_filter::ChainFilter;
 use beliefbus::filter::BayesFilter;
 use beliefbus::model::ship::{Ship, ShipParams};
@@ -25,6 +34,36 @@ fn sizes() -> Vec<usize> {
         vec![1_000, 10_000]
     }
 }
+
+/// Thread CPU time (CLOCK_THREAD_CPUTIME_ID).
+fn cpu_now() -> Duration {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes into the timespec we own.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
+}
+
+/// A clock: wall time, or thread CPU time with BENCH_CPU=1.
+#[derive(Clone, Copy)]
+struct Clock(bool);
+
+impl Clock {
+    fn from_env() -> Self {
+        Clock(std::env::var("BENCH_CPU").is_ok())
+    }
+    fn now(self) -> Duration {
+        if self.0 {
+            cpu_now()
+        } else {
+            Instant::now().duration_since(*EPOCH.get_or_init(Instant::now))
+        }
+    }
+}
+
+static EPOCH: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
 
 fn cfg(d: usize, kernel: KernelKind) -> ChainConfig {
     match kernel {
@@ -45,8 +84,15 @@ fn batch_group<M: SdeModel + Clone>(c: &mut Criterion, name: &str, model: &M, ke
             ch.mean_out_degree()
         );
         g.throughput(Throughput::Elements(n as u64));
+        let clock = Clock::from_env();
         g.bench_with_input(BenchmarkId::from_parameter(n), &pts, |b, pts| {
-            b.iter(|| Chain::batch(model, cfg(d, kernel), pts).unwrap())
+            b.iter_custom(|iters| {
+                let t0 = clock.now();
+                for _ in 0..iters {
+                    std::hint::black_box(Chain::batch(model, cfg(d, kernel), pts).unwrap());
+                }
+                clock.now() - t0
+            })
         });
     }
     g.finish();
@@ -67,6 +113,21 @@ fn incremental_group<M: SdeModel + Clone>(
         let pts = Sampler::Uniform.sample_many(model.bounds(), n, &mut stream(2, n as u64));
         let base = Chain::batch(model, cfg(d, kernel), &pts).unwrap();
         let new = Sampler::Uniform.sample_many(model.bounds(), add, &mut stream(3, n as u64));
+        {
+            let mut ch = base.clone();
+            let mut rec = Vec::new();
+            let mut touched = 0usize;
+            for x in new.chunks_exact(d) {
+                ch.add_state(model, x, &mut rec).unwrap();
+                touched += rec.len();
+            }
+            eprintln!(
+                "incremental/{name}/{kernel:?} n={n}: mean out-degree {:.2}, {:.1} rows (re)connected per added state",
+                ch.mean_out_degree(),
+                touched as f64 / add as f64
+            );
+        }
+        let clock = Clock::from_env();
         g.bench_function(BenchmarkId::from_parameter(n), |b| {
             b.iter_custom(|iters| {
                 let mut total = Duration::ZERO;
@@ -74,11 +135,11 @@ fn incremental_group<M: SdeModel + Clone>(
                 for _ in 0..iters {
                     let mut ch = base.clone();
                     ch.reserve(add);
-                    let t0 = Instant::now();
+                    let t0 = clock.now();
                     for x in new.chunks_exact(d) {
                         ch.add_state(model, x, &mut rec).unwrap();
                     }
-                    total += t0.elapsed();
+                    total += clock.now() - t0;
                 }
                 total
             })
@@ -145,10 +206,105 @@ fn step_group_with<M: SdeModel + Clone>(
     g.finish();
 }
 
+/// One filter step (predict 0.01 s + update) on the observations of a
+/// simulated trajectory from `prior`; thesis chain (`advected` false) or
+/// advected chain, flush 1e-12 as in the experiments.
+fn sim_group<M: SdeModel + Clone>(
+    c: &mut Criterion,
+    name: &str,
+    model: &M,
+    prior: &Gaussian,
+    kernel: KernelKind,
+    advected: bool,
+) {
+    let d = model.dims().state;
+    let m = model.dims().obs;
+    let u = vec![0.0; model.dims().control];
+    let dt = 0.01;
+    let steps = 500;
+    let tag = if advected { "advected" } else { "thesis" };
+    let mut rng = stream(5, 0);
+    let x0 = draw_from(model, prior, &mut rng);
+    let rec = simulate(model, &x0, dt, steps, 1e-3, &mut rng);
+    let clock = Clock::from_env();
+    let mut g = c.benchmark_group(format!("filter_step_sim/{tag}/{name}/{kernel:?}"));
+    g.sample_size(20).measurement_time(Duration::from_secs(3));
+    for n in sizes() {
+        let pts = Sampler::Uniform.sample_many(model.bounds(), n, &mut stream(4, n as u64));
+        let mut cf = cfg(d, kernel);
+        if advected {
+            cf.step = Some(dt);
+        }
+        let ch = Chain::batch(model, cf, &pts).unwrap();
+        let deg = ch.mean_out_degree();
+        let mut f = ChainFilter::new(model.clone(), ch, dt).unwrap();
+        f.set_flush(1e-12);
+        let mut k = 0usize;
+        let mut first = true;
+        g.bench_function(BenchmarkId::from_parameter(n), |b| {
+            if first {
+                // Per-step percentiles and support over the trajectory (at
+                // most two passes or 20 s).
+                first = false;
+                let mut times = Vec::with_capacity(2 * steps);
+                let mut support = 0usize;
+                let start = Instant::now();
+                'pass: for _ in 0..2 {
+                    f.reset(0.0, prior);
+                    for (k, &t) in rec.times.iter().enumerate() {
+                        let t0 = clock.now();
+                        f.predict(t, &u).unwrap();
+                        let _ = f.update(&Measurement::full(&rec.ys[k * m..(k + 1) * m]));
+                        times.push((clock.now() - t0).as_secs_f64() * 1e6);
+                        support += f.support();
+                        if start.elapsed() > Duration::from_secs(20) {
+                            break 'pass;
+                        }
+                    }
+                }
+                times.sort_by(f64::total_cmp);
+                let q = |p: f64| times[((times.len() - 1) as f64 * p).round() as usize];
+                eprintln!(
+                    "filter_step_sim/{tag}/{name}/{kernel:?} n={n}: out-degree {deg:.2}, {} substeps per step, mean support {:.0}, {} steps: p50 {:.1} us, p90 {:.1} us, p99 {:.1} us",
+                    (dt / f.delta()).round(),
+                    support as f64 / times.len() as f64,
+                    times.len(),
+                    q(0.5),
+                    q(0.9),
+                    q(0.99)
+                );
+                f.reset(0.0, prior);
+            }
+            b.iter_custom(|iters| {
+                let mut total = Duration::ZERO;
+                for _ in 0..iters {
+                    if k == rec.times.len() {
+                        k = 0;
+                        f.reset(0.0, prior);
+                    }
+                    let t0 = clock.now();
+                    f.predict(rec.times[k], &u).unwrap();
+                    let _ = f.update(&Measurement::full(&rec.ys[k * m..(k + 1) * m]));
+                    total += clock.now() - t0;
+                    k += 1;
+                }
+                total
+            })
+        });
+    }
+    g.finish();
+}
+
 fn benches(c: &mut Criterion) {
     let vdp = VanDerPol::new(VanDerPolParams::default()).unwrap();
     let ship = Ship::new(ShipParams::paper(0.01)).unwrap();
+    let ship_prior = Gaussian::diagonal(&[3.0, 2.0, 1.0, -0.5], &[0.3, 0.3, 0.2, 0.2]);
+    let vdp_prior = Gaussian::diagonal(&[0.5, 0.0], &[0.2, 0.2]);
     for kernel in [KernelKind::Gaussian, KernelKind::MomentMatched] {
+        for advected in [false, true] {
+            sim_group(c, "d2", &vdp, &vdp_prior, kernel, advected);
+            sim_group(c, "d4", &ship, &ship_prior, kernel, advected);
+        }
         batch_group(c, "d2", &vdp, kernel);
         batch_group(c, "d4", &ship, kernel);
         incremental_group(c, "d2", &vdp, kernel);

@@ -10,6 +10,16 @@
 //! Alg. 2.3:  per new z: S ← S ∪ {z}; ConnectState(z); ConnectState(z') ∀ z' ∈ Near(z)
 //! ```
 //!
+//! Near sets of the k-NN rule (without advection) are kept as exact lists
+//! (slot, squared distance) under insertion: adding z puts z into the list
+//! of every state whose k-th neighbour is farther than z (one radius query
+//! around z of the largest k-th-neighbour distance), so ConnectState(z')
+//! for z' ∈ Near(z) needs no k-d tree query and its row is recomputed only
+//! if the list changed since the row was last computed — the same Near
+//! sets and rows as querying the tree (test
+//! `near_lists_give_the_rows_of_a_fresh_query`). Batch construction
+//! connects states in Morton order, so consecutive queries share leaves.
+//!
 //! Storage is flat: coordinates n × d in one `Vec<f64>`, stable `u32` ids,
 //! holding times, radii, and slab/CSR transitions ([`super::storage`]).
 //! Per-state caches of f(z), ‖f‖, ‖FFᵀ‖ and the Cholesky factor of FFᵀ make
@@ -74,9 +84,25 @@ pub struct Chain {
     /// Advected construction: flow displacement m(z) over τ, n × d.
     adv: Vec<f64>,
     index: SpatialIndex,
+    /// k-NN rule without advection: each slot's Near set as (slot, squared
+    /// distance) in ascending order, kept exact under insertion (see
+    /// [`Self::add_state`]) so that reconnection needs no k-d tree query.
+    near_lists: Transitions,
+    /// k of each slot's Near list; 0 when it has none (reconnection then
+    /// queries the tree).
+    near_k: Vec<u32>,
+    /// Upper bound on the squared k-th-neighbour distance over all slots
+    /// with a list (lists only shrink under insertion).
+    near_r2_max: f64,
+    /// Counter each slot's current row was tallied under (a reconnection
+    /// whose Near set did not change is tallied again without recomputing).
+    outcome: Vec<KernelOutcome>,
+    /// Whether a slot's Near list changed since its row was computed.
+    row_stale: Vec<bool>,
     next_id: u32,
     stats: ChainStats,
     // scratch
+    cand: Vec<(u32, f64)>,
     neigh: Vec<(u32, f64)>,
     near_list: Vec<u32>,
     dz: Vec<f64>,
@@ -113,8 +139,14 @@ impl Chain {
             chol_ok: vec![],
             adv: vec![],
             index,
+            near_lists: Transitions::default(),
+            near_k: vec![],
+            near_r2_max: 0.0,
+            outcome: vec![],
+            row_stale: vec![],
             next_id: 0,
             stats: ChainStats::default(),
+            cand: Vec::with_capacity(256),
             neigh: Vec::with_capacity(256),
             near_list: Vec::with_capacity(256),
             dz: Vec::with_capacity(256 * d),
@@ -144,8 +176,11 @@ impl Chain {
         c.index = SpatialIndex::from_points(d, points).ok_or(ChainError::State(
             "kd-tree cannot store the states (too many share coordinate values)",
         ))?;
-        for i in 0..n {
-            c.connect(i)?;
+        // ConnectState in a space-filling-curve order of the states: each
+        // row depends only on the states, so the order changes no result,
+        // but consecutive k-d tree queries then touch the same leaves.
+        for i in morton_order(d, points) {
+            c.connect(i as usize)?;
         }
         Ok(c)
     }
@@ -176,6 +211,9 @@ impl Chain {
         self.ff.reserve(extra * d * d);
         self.chol.reserve(extra * d * d);
         self.chol_ok.reserve(extra);
+        self.near_k.reserve(extra);
+        self.outcome.reserve(extra);
+        self.row_stale.reserve(extra);
         if self.cfg.step.is_some() {
             self.adv.reserve(extra * d);
         }
@@ -201,6 +239,10 @@ impl Chain {
         reconnected.clear();
         self.connect(slot)?;
         reconnected.push(slot as u32);
+        if self.lists_enabled() {
+            self.reconnect_near_lists(slot, reconnected)?;
+            return Ok(slot as u32);
+        }
         // Near(z, S_n): the set ConnectState(z) just used. Advected form:
         // the states whose advected neighbourhoods may now contain z, i.e.
         // the neighbours of the upstream point z − m(z).
@@ -297,6 +339,10 @@ impl Chain {
         self.ff.extend_from_slice(&ff[..d * d]);
         self.chol.extend_from_slice(&l[..d * d]);
         self.chol_ok.push(ok);
+        self.near_lists.push_row();
+        self.near_k.push(0);
+        self.outcome.push(KernelOutcome::Absorbing);
+        self.row_stale.push(false);
         if let Some(tau) = self.cfg.step {
             let m = self.flow_displacement(model, x, tau);
             self.adv.extend_from_slice(&m[..d]);
@@ -321,6 +367,10 @@ impl Chain {
         self.ff.truncate(n * d * d);
         self.chol.truncate(n * d * d);
         self.chol_ok.truncate(n);
+        self.near_lists.pop_row();
+        self.near_k.truncate(n);
+        self.outcome.truncate(n);
+        self.row_stale.truncate(n);
         if self.cfg.step.is_some() {
             self.adv.truncate(n * d);
         }
@@ -414,6 +464,17 @@ impl Chain {
                 } else {
                     self.neigh.truncate(k);
                 }
+                if self.lists_enabled() && self.neigh.len() == k && k > 0 {
+                    self.cbuf.clear();
+                    self.pbuf.clear();
+                    self.cbuf.extend(self.neigh.iter().map(|e| e.0));
+                    self.pbuf.extend(self.neigh.iter().map(|e| e.1));
+                    self.near_lists.set_row(i, &self.cbuf, &self.pbuf);
+                    self.near_k[i] = k as u32;
+                    self.near_r2_max = self.near_r2_max.max(self.pbuf[k - 1]);
+                } else {
+                    self.near_k[i] = 0;
+                }
                 self.neigh.iter().fold(0.0f64, |m, e| m.max(e.1)).sqrt()
             }
             NearRule::Radius { .. } => {
@@ -430,6 +491,28 @@ impl Chain {
                 r
             }
         };
+        self.connect_near(i, r)
+    }
+
+    /// The rest of ConnectState for slot `i` once its Near set is in
+    /// `self.neigh` with radius `r`: holding time and transition row.
+    fn connect_near(&mut self, i: usize, r: f64) -> Result<(), ChainError> {
+        let d = self.dim;
+        let x: [f64; MAX_INDEX_DIM] = {
+            let mut a = [0.0; MAX_INDEX_DIM];
+            a[..d].copy_from_slice(&self.states[i * d..(i + 1) * d]);
+            a
+        };
+        let x = &x[..d];
+        let mut centre = [0.0; MAX_INDEX_DIM];
+        centre[..d].copy_from_slice(x);
+        if self.cfg.step.is_some() {
+            for c in 0..d {
+                centre[c] += self.adv[i * d + c];
+            }
+        }
+        let q = &centre[..d];
+        self.row_stale[i] = false;
         let (fnorm, dnorm) = (self.drift_norm[i], self.diff_norm[i]);
         // Advected form: the Near ball must hold the diffusion's spread
         // √(‖FFᵀ‖τ) or the covariance cannot be matched (fixed τ, unlike
@@ -464,6 +547,7 @@ impl Chain {
             self.holding[i] = f64::INFINITY;
             self.trans.set_row(i, &[], &[]);
             self.stats.absorbing += 1;
+            self.outcome[i] = KernelOutcome::Absorbing;
             return Ok(());
         }
         let dt = match self.cfg.step {
@@ -517,6 +601,7 @@ impl Chain {
                     return Err(ChainError::SingularDiffusion);
                 }
                 self.stats.gaussian += 1;
+                self.outcome[i] = KernelOutcome::Gaussian;
                 dt
             }
             KernelKind::MomentMatched => {
@@ -540,11 +625,13 @@ impl Chain {
                     &mut self.work,
                     &mut self.pbuf,
                 );
-                match fit.outcome {
-                    KernelOutcome::Exact => self.stats.exact += 1,
-                    KernelOutcome::LeastSquares => self.stats.least_squares += 1,
-                    _ => self.stats.gaussian += 1,
-                }
+                let tally = match fit.outcome {
+                    KernelOutcome::Exact => KernelOutcome::Exact,
+                    KernelOutcome::LeastSquares => KernelOutcome::LeastSquares,
+                    _ => KernelOutcome::Gaussian,
+                };
+                self.tally(tally);
+                self.outcome[i] = tally;
                 fit.holding
             }
         };
@@ -566,6 +653,88 @@ impl Chain {
         }
         self.holding[i] = holding;
         self.trans.set_row(i, &self.cbuf[..w], &self.pbuf[..w]);
+        Ok(())
+    }
+
+    /// Whether Near sets are kept as exact lists (k-NN rule, no advection).
+    fn lists_enabled(&self) -> bool {
+        matches!(self.cfg.near, NearRule::Knn { .. }) && self.cfg.step.is_none()
+    }
+
+    fn tally(&mut self, o: KernelOutcome) {
+        match o {
+            KernelOutcome::Gaussian => self.stats.gaussian += 1,
+            KernelOutcome::Exact => self.stats.exact += 1,
+            KernelOutcome::LeastSquares => self.stats.least_squares += 1,
+            KernelOutcome::Absorbing => self.stats.absorbing += 1,
+        }
+    }
+
+    /// Alg. 2.3 lines 7–8 with exact Near lists, after ConnectState(z) of
+    /// the new slot `z` (its Near set is in `self.neigh`).
+    ///
+    /// Every list of the current k stays the exact k-NN set of its state:
+    /// z enters the list of each slot j with ‖z_j − z‖ < r_k(j), found by
+    /// one radius query of radius max_j r_k(j) around z (lists only shrink
+    /// under insertion, so the running maximum bounds them). Then each
+    /// z' ∈ Near(z) is reconnected from its list — recomputing the row when
+    /// the list changed since the row was computed, and otherwise leaving
+    /// it as it is, which is what ConnectState(z') gives for an unchanged
+    /// Near set and unchanged k. A slot whose list is of a smaller k (k = ⌈c log n⌉ grew) is
+    /// reconnected with a k-d tree query, which also renews its list.
+    fn reconnect_near_lists(
+        &mut self,
+        z: usize,
+        reconnected: &mut Vec<u32>,
+    ) -> Result<(), ChainError> {
+        let d = self.dim;
+        let k = self.knn_k(self.len()) as u32;
+        let mut near = std::mem::take(&mut self.near_list);
+        near.clear();
+        near.extend(self.neigh.iter().map(|e| e.0));
+        if k > 0 && self.near_r2_max > 0.0 {
+            let mut x = [0.0; MAX_INDEX_DIM];
+            x[..d].copy_from_slice(&self.states[z * d..(z + 1) * d]);
+            // Slightly inflated so that rounding in sqrt cannot drop a slot.
+            let radius = self.near_r2_max.sqrt() * (1.0 + 1e-9);
+            self.index.within(&x[..d], radius, &mut self.cand);
+            for &(j, d2) in &self.cand {
+                let j = j as usize;
+                if j == z || self.near_k[j] != k {
+                    continue;
+                }
+                let (cols, vals) = self.near_lists.row_mut(j);
+                let mut p = vals.len() - 1;
+                if !(d2 < vals[p]) {
+                    continue;
+                }
+                while p > 0 && vals[p - 1] > d2 {
+                    cols[p] = cols[p - 1];
+                    vals[p] = vals[p - 1];
+                    p -= 1;
+                }
+                cols[p] = z as u32;
+                vals[p] = d2;
+                self.row_stale[j] = true;
+            }
+        }
+        for &j in &near {
+            let ju = j as usize;
+            if self.near_k[ju] != k {
+                self.connect(ju)?;
+            } else if self.row_stale[ju] {
+                self.neigh.clear();
+                let (c, v) = self.near_lists.row(ju);
+                self.neigh.extend(c.iter().copied().zip(v.iter().copied()));
+                let r = v.last().map_or(0.0, |r2| r2.sqrt());
+                self.connect_near(ju, r)?;
+            } else {
+                self.stats.connects += 1;
+                self.tally(self.outcome[ju]);
+            }
+            reconnected.push(j);
+        }
+        self.near_list = near;
         Ok(())
     }
 
@@ -753,6 +922,46 @@ impl Chain {
     }
 }
 
+/// Slots of the flat n × d `points` in Morton (Z-curve) order over their
+/// bounding box, so that consecutive points are spatially close.
+fn morton_order(d: usize, points: &[f64]) -> Vec<u32> {
+    let n = points.len() / d.max(1);
+    if d == 0 || n == 0 {
+        return vec![];
+    }
+    let bits = (63 / d).min(16) as u32;
+    let mut lo = [f64::INFINITY; MAX_INDEX_DIM];
+    let mut hi = [f64::NEG_INFINITY; MAX_INDEX_DIM];
+    for p in points.chunks_exact(d) {
+        for c in 0..d {
+            lo[c] = lo[c].min(p[c]);
+            hi[c] = hi[c].max(p[c]);
+        }
+    }
+    let levels = ((1u64 << bits) - 1) as f64;
+    let mut keyed: Vec<(u64, u32)> = points
+        .chunks_exact(d)
+        .enumerate()
+        .map(|(i, p)| {
+            let mut q = [0u64; MAX_INDEX_DIM];
+            for c in 0..d {
+                let w = hi[c] - lo[c];
+                let t = if w > 0.0 { (p[c] - lo[c]) / w } else { 0.0 };
+                q[c] = (t * levels).clamp(0.0, levels) as u64;
+            }
+            let mut key = 0u64;
+            for b in (0..bits).rev() {
+                for qc in &q[..d] {
+                    key = (key << 1) | ((qc >> b) & 1);
+                }
+            }
+            (key, i as u32)
+        })
+        .collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -801,6 +1010,72 @@ mod tests {
             // batch with k-NN: out-degree = k(n) unless zero-probability
             // entries were dropped.
             assert!(b.mean_out_degree() > 3.0);
+        }
+    }
+
+    #[test]
+    fn near_lists_give_the_rows_of_a_fresh_query() {
+        // Reconnection from the kept k-NN lists must give exactly what
+        // ConnectState with a k-d tree query gives (Alg. 2.3), for every
+        // reconnected slot, across growth of k = ⌈c log n⌉.
+        let m = ou2(0.5, 1.0, 0.3, 1.0);
+        let mut rng = crate::rng::stream(9, 0);
+        for cfg in [ChainConfig::gaussian(2), ChainConfig::moment_matched(2)] {
+            let pts = Sampler::Uniform.sample_many(m.bounds(), 200, &mut rng);
+            let mut c = Chain::batch(&m, cfg, &pts).unwrap();
+            let mut rec = vec![];
+            let mut x = [0.0; 2];
+            let mut checked = 0;
+            let mut from_lists = 0;
+            for step in 0..1500 {
+                Sampler::Uniform.sample(m.bounds(), &mut rng, &mut x);
+                let before = c.stats().connects;
+                c.add_state(&m, &x, &mut rec).unwrap();
+                assert_eq!(c.stats().connects - before, rec.len() as u64);
+                if step % 50 != 0 {
+                    continue;
+                }
+                let mut fresh = c.clone();
+                for &j in &rec {
+                    let j = j as usize;
+                    from_lists += (c.near_k[j] == c.knn_k(c.len()) as u32) as usize;
+                    fresh.reconnect(j).unwrap();
+                    let (ca, pa) = c.row(j);
+                    let (cb, pb) = fresh.row(j);
+                    assert_eq!(ca, cb, "slot {j}");
+                    for (a, b) in pa.iter().zip(pb) {
+                        assert!((a - b).abs() <= 1e-12 * b.max(1e-300), "{a} vs {b}");
+                    }
+                    let (ha, hb) = (c.holding()[j], fresh.holding()[j]);
+                    assert!((ha - hb).abs() <= 1e-12 * hb, "{ha} vs {hb}");
+                    assert_eq!(c.near_count()[j], fresh.near_count()[j]);
+                    checked += 1;
+                }
+                // every list of the current k is the exact k-NN set
+                let k = c.knn_k(c.len());
+                for i in 0..c.len() {
+                    if c.near_k[i] as usize != k {
+                        continue;
+                    }
+                    let mut d2: Vec<(f64, u32)> = (0..c.len())
+                        .filter(|&j| j != i)
+                        .map(|j| {
+                            let s = (0..2).map(|a| (c.state(j)[a] - c.state(i)[a]).powi(2));
+                            (s.sum(), j as u32)
+                        })
+                        .collect();
+                    d2.sort_by(|a, b| a.0.total_cmp(&b.0));
+                    let mut want: Vec<u32> = d2[..k].iter().map(|e| e.1).collect();
+                    let mut got = c.near_lists.row(i).0.to_vec();
+                    want.sort_unstable();
+                    got.sort_unstable();
+                    assert_eq!(got, want, "list of slot {i}");
+                }
+            }
+            assert!(
+                checked > 200 && from_lists > checked / 2,
+                "{checked} {from_lists}"
+            );
         }
     }
 

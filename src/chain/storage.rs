@@ -90,6 +90,14 @@ impl Transitions {
         (&self.cols[s..e], &self.probs[s..e])
     }
 
+    /// Row `i` as mutable (column slots, values), for in-place edits that
+    /// keep its length (e.g. the Near lists of [`super::Chain`]).
+    pub fn row_mut(&mut self, i: usize) -> (&mut [u32], &mut [f64]) {
+        let s = self.start[i] as usize;
+        let e = s + self.len[i] as usize;
+        (&mut self.cols[s..e], &mut self.probs[s..e])
+    }
+
     /// Rewrite into plain CSR in row order with no slack.
     pub fn compact(&mut self) {
         if self.compact {

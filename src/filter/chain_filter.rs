@@ -542,9 +542,10 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
             nm += 1;
             cst -= std[i].ln() + HALF_LOG_2PI;
         }
+        // ll is indexed by position in `active` (contiguous, not by slot).
         let mut r = [0.0; MAX_OBS];
         let mut lmax = f64::NEG_INFINITY;
-        for &zi in &self.active {
+        for (a, &zi) in self.active.iter().enumerate() {
             let z = zi as usize;
             let g = &self.obs_mean[z * m..(z + 1) * m];
             self.model.obs_residual(&meas.y[..m], g, &mut r[..m]);
@@ -554,23 +555,23 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
                 q += ri * ri * inv_var[j];
             }
             let l = -0.5 * q;
-            self.ll[z] = l;
+            self.ll[a] = l;
             lmax = lmax.max(l);
         }
         if !lmax.is_finite() {
             return Err(FilterError::Degenerate);
         }
         let mut sum = 0.0;
-        for &zi in &self.active {
+        for (j, &zi) in self.active.iter().enumerate() {
             let z = zi as usize;
-            let a = self.ll[z] - lmax;
+            let a = self.ll[j] - lmax;
             // exp(−700) ≈ 1e-304: below that the result is zero or subnormal.
             let w = if a > -700.0 {
                 self.phi[z] * a.exp()
             } else {
                 0.0
             };
-            self.ll[z] = w;
+            self.ll[j] = w;
             sum += w;
         }
         if !(sum > 0.0 && sum.is_finite()) {
@@ -580,9 +581,13 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
         let mut s2 = 0.0;
         let flush = self.flush;
         let mut keep = 0;
+        // The belief's moments in the same pass (what `moments` computes,
+        // in the same order, so `belief` after an update is free).
+        let d = self.dims.state;
+        let mut acc = WeightedMoments::new(&self.prior.mean[..d]);
         for j in 0..self.active.len() {
             let z = self.active[j] as usize;
-            let mut w = self.ll[z] * inv;
+            let mut w = self.ll[j] * inv;
             // Mass below FLUSH carries nothing for f64 estimates; zeroing it
             // keeps predict's products out of subnormal range (≈100× slower)
             // and lets update skip unreachable states.
@@ -591,12 +596,13 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
             } else {
                 self.active[keep] = z as u32;
                 keep += 1;
+                acc.add(w, self.chain.state(z));
             }
             self.phi[z] = w;
             s2 += w * w;
         }
         self.active.truncate(keep);
-        self.belief.set(None);
+        self.belief.set(Some(acc.gaussian()));
         Ok(UpdateInfo {
             log_evidence: lmax + sum.ln() + cst,
             ess: 1.0 / s2,
