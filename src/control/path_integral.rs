@@ -113,6 +113,12 @@ pub struct PathIntegralConfig {
     /// controls the planned path implies (0: the paper's unconstrained F,
     /// only the final clamp). See `PathSetup::with_control_limit`.
     pub control_limit_weight: f64,
+    /// δ of the C² quadratic–cubic blend of that penalty (force units; 0:
+    /// the C¹ max(0, e)² kink). See `PathSetup::with_control_limit`.
+    pub control_limit_blend: f64,
+    /// Newton stops when ½gᵀH⁻¹g (the error of the minimum F to second
+    /// order) ≤ newton_tol · max(1, |F|).
+    pub newton_tol: f64,
     /// Seed of the sampler's random numbers.
     pub seed: u64,
     /// Per-control compute budget in µs (0: unlimited).
@@ -139,6 +145,8 @@ impl Default for PathIntegralConfig {
             control_cost: 0.1,
             u_max: 3.0,
             control_limit_weight: 10.0,
+            control_limit_blend: 0.0,
+            newton_tol: 1e-9,
             seed: 1,
             budget_us: 500.0,
             gradient: GradientConfig::Analytic,
@@ -201,6 +209,12 @@ impl PathIntegralConfig {
         if !(self.control_limit_weight >= 0.0 && self.control_limit_weight.is_finite()) {
             return Err(invalid("control_limit_weight", "must be ≥ 0 and finite"));
         }
+        if !(self.control_limit_blend >= 0.0 && self.control_limit_blend.is_finite()) {
+            return Err(invalid("control_limit_blend", "must be ≥ 0 and finite"));
+        }
+        if !(self.newton_tol > 0.0 && self.newton_tol < 1.0) {
+            return Err(invalid("newton_tol", "must be in (0, 1)"));
+        }
         if !(self.budget_us >= 0.0 && self.budget_us.is_finite()) {
             return Err(invalid("budget_us", "must be ≥ 0 (0: unlimited)"));
         }
@@ -237,6 +251,7 @@ impl PathIntegralConfig {
             gate_sampling: GateSampling::Marginal,
             newton: NewtonOptions {
                 max_iter: self.newton_max_iter,
+                tol_decrement: self.newton_tol,
                 reuse_factor: true,
                 ..NewtonOptions::default()
             },
@@ -389,7 +404,9 @@ impl<M: ControlAffine, C: PathCost> PathIntegralController<M, C> {
             r[i + i * p] = cfg.control_cost;
         }
         let setup = PathSetup::new(&model, &r[..p * p], cfg.dt)
-            .and_then(|s| s.with_control_limit(cfg.u_max, cfg.control_limit_weight))
+            .and_then(|s| {
+                s.with_control_limit(cfg.u_max, cfg.control_limit_weight, cfg.control_limit_blend)
+            })
             .map_err(|e| ControlError::Model(e.to_string()))?;
         let k = match cfg.belief {
             BeliefMode::Mean => 1,

@@ -91,6 +91,8 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
             "budget_us",
             "mppi_samples",
             "pi_limit_weight",
+            "pi_limit_blend",
+            "pi_newton_tol",
         ],
     )?;
     let runs = args.runs.unwrap_or(5);
@@ -108,6 +110,9 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
         "pi_limit_weight",
         PathIntegralConfig::default().control_limit_weight,
     )?;
+    let defaults = PathIntegralConfig::default();
+    let limit_blend: f64 = param(args, "pi_limit_blend", defaults.control_limit_blend)?;
+    let newton_tol: f64 = param(args, "pi_newton_tol", defaults.newton_tol)?;
     let mppi_samples: Vec<usize> = list_param(args, "mppi_samples", &[2048, 512])?;
     let dt = 0.01;
     let steps = (duration / dt).round() as usize;
@@ -138,6 +143,8 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
             budget_us,
             belief,
             control_limit_weight: limit_weight,
+            control_limit_blend: limit_blend,
+            newton_tol,
             ..PathIntegralConfig::default()
         };
         specs.push(Spec {
@@ -196,6 +203,8 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
     rep.param("pi_belief", pi_belief.as_str());
     rep.param("pi_budget_us", budget_us);
     rep.param("pi_limit_weight", limit_weight);
+    rep.param("pi_limit_blend", limit_blend);
+    rep.param("pi_newton_tol", newton_tol);
     rep.param(
         "waypoints",
         "(5,5) (-5,5) (-5,-5) (5,-5), reach 1.0, no cycle; start (3,0,0,0)",

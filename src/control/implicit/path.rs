@@ -126,6 +126,8 @@ pub struct PathSetup {
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct ControlLimit {
     u_max: f64,
+    /// δ: width of the cubic blend (0: the C¹ kink max(0, e)²).
+    blend: f64,
     /// κΔt/γ: F units per (excess control)² per step.
     weight: f64,
     /// B⁻¹ (b×b): the implied control of an increment r is B⁻¹r/Δt.
@@ -229,18 +231,30 @@ impl PathSetup {
 
     /// Add a soft box limit |u_c| ≤ u_max on the controls implied by the
     /// path increments, u_i = B⁻¹ r_i/Δt (B = G on the noise-driven rows):
-    /// F gains Σ_i (κΔt/γ) Σ_c max(0, |u_{i,c}| − u_max)², a running cost
-    /// κ·excess² per unit time. This is not in paper 003 (which has no
-    /// limits): it approximates the input-constrained value function, whose
-    /// optimal control is the clamp of −R⁻¹Gᵀ∂ₓJ for diagonal R, so the
-    /// plan stops assuming forces the actuator cannot give. κ = 0 leaves F
-    /// as in eq. (15). Needs b = p (B square and invertible).
-    pub fn with_control_limit(mut self, u_max: f64, kappa: f64) -> Result<Self, AffineError> {
+    /// F gains Σ_i (κΔt/γ) Σ_c φ_δ(|u_{i,c}| − u_max), a running cost
+    /// κ·φ_δ(excess) per unit time, with the C² quadratic–cubic blend
+    ///
+    ///   φ_δ(e) = 0 (e ≤ 0),  e³/(3δ) (0 < e ≤ δ),  e² − δe + δ²/3 (e > δ)
+    ///
+    /// (φ' = e²/δ then 2e − δ; φ'' = 2e/δ then 2). δ = 0 gives the C¹
+    /// max(0, e)², whose Hessian jumps where a control reaches the limit:
+    /// Newton then cycles between active sets; the blend lets the Hessian
+    /// grow continuously. This is not in paper 003 (which has no limits):
+    /// it approximates the input-constrained value function, whose optimal
+    /// control is the clamp of −R⁻¹Gᵀ∂ₓJ for diagonal R, so the plan stops
+    /// assuming forces the actuator cannot give. κ = 0 leaves F as in
+    /// eq. (15). Needs b = p (B square and invertible).
+    pub fn with_control_limit(
+        mut self,
+        u_max: f64,
+        kappa: f64,
+        blend: f64,
+    ) -> Result<Self, AffineError> {
         if kappa <= 0.0 {
             self.limit = None;
             return Ok(self);
         }
-        if self.b != self.p || !(u_max > 0.0) {
+        if self.b != self.p || !(u_max > 0.0) || !(blend >= 0.0 && blend.is_finite()) {
             return Err(AffineError::ControlCost);
         }
         let (m, b, roff) = (self.m, self.b, self.roff);
@@ -248,6 +262,7 @@ impl PathSetup {
         let binv = bm.try_inverse().ok_or(AffineError::ControlCost)?;
         let mut l = ControlLimit {
             u_max,
+            blend,
             weight: kappa * self.dt / self.gamma,
             binv: [0.0; MAX_CONTROL * MAX_CONTROL],
         };
@@ -275,14 +290,28 @@ impl PathSetup {
             w *= inv_dt;
             let ex = w.abs() - l.u_max;
             if ex > 0.0 {
-                pen += l.weight * ex * ex;
-                // ∂/∂r_d = 2κ' ex sign(w) B⁻¹_{cd}/Δt; ∂²/∂r_d∂r_e = 2κ' B⁻¹_{cd}B⁻¹_{ce}/Δt².
-                let gw = 2.0 * l.weight * ex * w.signum() * inv_dt;
+                // φ_δ(ex), φ', φ''.
+                let (phi, d1, d2) = if ex < l.blend {
+                    (
+                        ex * ex * ex / (3.0 * l.blend),
+                        ex * ex / l.blend,
+                        2.0 * ex / l.blend,
+                    )
+                } else {
+                    (
+                        ex * ex - l.blend * ex + l.blend * l.blend / 3.0,
+                        2.0 * ex - l.blend,
+                        2.0,
+                    )
+                };
+                pen += l.weight * phi;
+                // ∂/∂r_d = κ' φ' sign(w) B⁻¹_{cd}/Δt; ∂²/∂r_d∂r_e = κ' φ'' B⁻¹_{cd}B⁻¹_{ce}/Δt².
+                let gw = l.weight * d1 * w.signum() * inv_dt;
                 for d in 0..b {
                     gr[d] += gw * l.binv[c + d * b];
                 }
                 if let Some(h) = hr.as_deref_mut() {
-                    let hw = 2.0 * l.weight * inv_dt * inv_dt;
+                    let hw = l.weight * d2 * inv_dt * inv_dt;
                     for d in 0..b {
                         for e in 0..b {
                             h[d + e * b] += hw * l.binv[c + d * b] * l.binv[c + e * b];
@@ -1068,10 +1097,33 @@ mod tests {
         z: &[f64],
         limit: Option<(f64, f64)>,
     ) {
+        // The C¹ kink (δ = 0), a blend narrower than most excesses, and one
+        // wide enough that the cubic branch carries them.
+        if limit.is_some() {
+            for blend in [0.0, 0.5, 5.0] {
+                check_blend(model, cost, r, dt, x, n, z, limit, blend);
+            }
+        } else {
+            check_blend(model, cost, r, dt, x, n, z, None, 0.0);
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn check_blend<M: ControlAffine, C: PathCost>(
+        model: &M,
+        cost: &C,
+        r: &[f64],
+        dt: f64,
+        x: &[f64],
+        n: usize,
+        z: &[f64],
+        limit: Option<(f64, f64)>,
+        blend: f64,
+    ) {
         let mut setup = PathSetup::new(model, r, dt).unwrap();
         let plain = setup.clone();
         if let Some((u_max, kappa)) = limit {
-            setup = setup.with_control_limit(u_max, kappa).unwrap();
+            setup = setup.with_control_limit(u_max, kappa, blend).unwrap();
         }
         let f = PathFunctional::new(&setup, model, cost, x, n, None);
         if limit.is_some() {
