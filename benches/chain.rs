@@ -94,17 +94,42 @@ fn step_group<M: SdeModel + Clone>(
     y: &[f64],
     kernel: KernelKind,
 ) {
+    step_group_with(c, name, model, y, kernel, false)
+}
+
+/// `advected`: ChainConfig::step = 0.01 (one δ step per observation) and
+/// flush 1e-12 (sparse support), as in the filtering experiments.
+fn step_group_with<M: SdeModel + Clone>(
+    c: &mut Criterion,
+    name: &str,
+    model: &M,
+    y: &[f64],
+    kernel: KernelKind,
+    advected: bool,
+) {
     let d = model.dims().state;
     let u = vec![0.0; model.dims().control];
-    let mut g = c.benchmark_group(format!("filter_step/{name}/{kernel:?}"));
+    let tag = if advected {
+        "filter_step_advected"
+    } else {
+        "filter_step"
+    };
+    let mut g = c.benchmark_group(format!("{tag}/{name}/{kernel:?}"));
     g.sample_size(20).measurement_time(Duration::from_secs(3));
     for n in sizes() {
         let pts = Sampler::Uniform.sample_many(model.bounds(), n, &mut stream(4, n as u64));
-        let ch = Chain::batch(model, cfg(d, kernel), &pts).unwrap();
+        let mut cf = cfg(d, kernel);
+        if advected {
+            cf.step = Some(0.01);
+        }
+        let ch = Chain::batch(model, cf, &pts).unwrap();
         let deg = ch.mean_out_degree();
         let mut f = ChainFilter::new(model.clone(), ch, 0.01).unwrap();
+        if advected {
+            f.set_flush(1e-12);
+        }
         eprintln!(
-            "filter_step/{name}/{kernel:?} n={n}: mean out-degree {deg:.2}, delta {:.2e} ({} substeps per step)",
+            "{tag}/{name}/{kernel:?} n={n}: mean out-degree {deg:.2}, delta {:.2e} ({} substeps per step)",
             f.delta(),
             (0.01 / f.delta()).round()
         );
@@ -130,6 +155,8 @@ fn benches(c: &mut Criterion) {
         incremental_group(c, "d4", &ship, kernel);
         step_group(c, "d2", &vdp, &[0.5], kernel);
         step_group(c, "d4", &ship, &[5.0, 0.3], kernel);
+        step_group_with(c, "d2", &vdp, &[0.5], kernel, true);
+        step_group_with(c, "d4", &ship, &[5.0, 0.3], kernel, true);
     }
 }
 

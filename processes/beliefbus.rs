@@ -51,6 +51,24 @@ enum Command {
         /// docs/sensor-abi.md).
         #[arg(long, value_enum, default_value_t = SensorArg::Plant)]
         sensor: SensorArg,
+        /// Fault injection: SIGKILL a random stage at this mean interval
+        /// (seconds, exponential gaps); the supervisor restarts it.
+        #[arg(long, value_name = "SECONDS")]
+        chaos: Option<f64>,
+        /// Seed of the chaos schedule (default: run.seed).
+        #[arg(long)]
+        chaos_seed: Option<u64>,
+        /// Stages chaos may kill, comma-separated (default: all).
+        #[arg(long, value_delimiter = ',')]
+        chaos_stages: Vec<String>,
+        /// Write a timeline (JSON lines: RSS, shared-memory files, latency
+        /// percentiles per period) to this file.
+        #[arg(long)]
+        timeline: Option<PathBuf>,
+        /// Period of the timeline samples in seconds (0: none; default 60
+        /// with --timeline, else 0).
+        #[arg(long)]
+        timeline_period: Option<f64>,
     },
     /// Run the simulated plant alone, as an external sensor publisher of a
     /// pipeline started with `run CONFIG --sensor external`.
@@ -133,9 +151,35 @@ fn main() {
         sets,
         quiet,
         sensor,
+        chaos,
+        chaos_seed,
+        chaos_stages,
+        timeline,
+        timeline_period,
     } = &cli.command
     {
         use beliefbus::pipeline::launcher::SensorSource;
+        if let Some(c) = chaos {
+            if !(c.is_finite() && *c > 0.0) {
+                eprintln!("config: `--chaos`: must be a positive number of seconds, got {c}");
+                std::process::exit(2);
+            }
+        }
+        let mut kinds = Vec::new();
+        for n in chaos_stages {
+            match beliefbus::ipc::StageKind::from_name(n.trim()) {
+                Some(k) => kinds.push(k),
+                None => {
+                    eprintln!("config: `--chaos-stages`: unknown stage '{n}' (ingest, filter, control, refine, plant)");
+                    std::process::exit(2);
+                }
+            }
+        }
+        let period = timeline_period.unwrap_or(if timeline.is_some() { 60.0 } else { 0.0 });
+        if !(period.is_finite() && period >= 0.0) {
+            eprintln!("config: `--timeline-period`: must be >= 0 seconds, got {period}");
+            std::process::exit(2);
+        }
         let opts = beliefbus::pipeline::launcher::RunOptions {
             config: config.clone(),
             sensor: match sensor {
@@ -146,6 +190,11 @@ fn main() {
             report: report.clone(),
             sets: sets.clone(),
             quiet: *quiet,
+            chaos_s: *chaos,
+            chaos_seed: *chaos_seed,
+            chaos_stages: kinds,
+            timeline: timeline.clone(),
+            timeline_period_s: period,
         };
         std::process::exit(beliefbus::pipeline::launcher::main(&opts));
     }

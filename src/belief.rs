@@ -91,3 +91,67 @@ impl Gaussian {
         g
     }
 }
+
+/// Weighted mean and covariance of points, accumulated as offsets from a
+/// centre c (near the mean, so the second moment does not cancel):
+/// m = c + Σw(z−c)/Σw, P = Σw(z−c)(z−c)ᵀ/Σw − (m−c)(m−c)ᵀ.
+pub struct WeightedMoments {
+    d: usize,
+    c: [f64; MAX_STATE],
+    m1: [f64; MAX_STATE],
+    m2: [f64; MAX_STATE * MAX_STATE],
+    tot: f64,
+}
+
+impl WeightedMoments {
+    /// An empty accumulator in dimension `c.len()` centred at `c`.
+    pub fn new(c: &[f64]) -> Self {
+        let mut centre = [0.0; MAX_STATE];
+        centre[..c.len()].copy_from_slice(c);
+        Self {
+            d: c.len(),
+            c: centre,
+            m1: [0.0; MAX_STATE],
+            m2: [0.0; MAX_STATE * MAX_STATE],
+            tot: 0.0,
+        }
+    }
+
+    /// Add the point `z` with weight `w ≥ 0`.
+    #[inline]
+    pub fn add(&mut self, w: f64, z: &[f64]) {
+        let d = self.d;
+        self.tot += w;
+        let mut dz = [0.0; MAX_STATE];
+        for a in 0..d {
+            dz[a] = z[a] - self.c[a];
+            self.m1[a] += w * dz[a];
+        }
+        for a in 0..d {
+            let wa = w * dz[a];
+            for b in a..d {
+                self.m2[a + b * d] += wa * dz[b];
+            }
+        }
+    }
+
+    /// The Gaussian with the accumulated mean and covariance.
+    pub fn gaussian(&self) -> Gaussian {
+        let d = self.d;
+        let mut g = Gaussian::zeros(d);
+        let tot = self.tot.max(1e-300);
+        let mut m1 = [0.0; MAX_STATE];
+        for a in 0..d {
+            m1[a] = self.m1[a] / tot;
+            g.mean[a] = self.c[a] + m1[a];
+        }
+        for a in 0..d {
+            for b in a..d {
+                let v = self.m2[a + b * d] / tot - m1[a] * m1[b];
+                g.set_cov(a, b, v);
+                g.set_cov(b, a, v);
+            }
+        }
+        g
+    }
+}

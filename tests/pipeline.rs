@@ -328,8 +328,14 @@ fn after_the_launcher_is_killed_its_stages_stop_and_a_sweep_removes_the_run() {
             let _ = tx.send(line);
         }
     });
-    // The first line names the prefix; wait for a status line (all up).
-    let first = rx.recv_timeout(Duration::from_secs(30)).unwrap();
+    // A line names the prefix (a note about swept earlier crashed runs may
+    // come first); then wait for a status line (all up).
+    let first = loop {
+        let l = rx.recv_timeout(Duration::from_secs(30)).unwrap();
+        if l.contains("prefix") {
+            break l;
+        }
+    };
     // "bus: prefix=<prefix> instance=… sensor=…" (or the prefix last).
     let prefix = first
         .split_whitespace()

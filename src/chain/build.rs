@@ -19,8 +19,8 @@
 
 use super::index::{SpatialIndex, MAX_INDEX_DIM};
 use super::kernel::{
-    gaussian, holding_time, moment_matched, KernelKind, KernelOutcome, KernelWork, LocalDyn,
-    MAX_LP_NEIGHBOURS,
+    gaussian_at, holding_time, moment_matched_at, KernelKind, KernelOutcome, KernelWork, LocalDyn,
+    ADVECTED_MEAN_ROW_WEIGHT, MAX_LP_NEIGHBOURS, MEAN_ROW_WEIGHT,
 };
 use super::linalg::{cholesky, sym_spectral_norm};
 use super::sample::Sampler;
@@ -29,6 +29,10 @@ use super::{ChainConfig, ChainError, NearRule};
 use crate::model::SdeModel;
 use crate::rng::SimRng;
 use crate::{MAX_NOISE, MAX_STATE};
+
+/// Advected construction: the Near ball around z + m(z) holds at least
+/// this many diffusion standard deviations √(‖FFᵀ‖τ).
+pub const ADVECTED_SPREAD: f64 = 2.5;
 
 /// Transition probabilities below this are dropped from a row.
 pub const MIN_PROB: f64 = 1e-12;
@@ -67,6 +71,8 @@ pub struct Chain {
     ff: Vec<f64>,
     chol: Vec<f64>,
     chol_ok: Vec<bool>,
+    /// Advected construction: flow displacement m(z) over τ, n × d.
+    adv: Vec<f64>,
     index: SpatialIndex,
     next_id: u32,
     stats: ChainStats,
@@ -105,6 +111,7 @@ impl Chain {
             ff: vec![],
             chol: vec![],
             chol_ok: vec![],
+            adv: vec![],
             index,
             next_id: 0,
             stats: ChainStats::default(),
@@ -169,6 +176,9 @@ impl Chain {
         self.ff.reserve(extra * d * d);
         self.chol.reserve(extra * d * d);
         self.chol_ok.reserve(extra);
+        if self.cfg.step.is_some() {
+            self.adv.reserve(extra * d);
+        }
     }
 
     /// One step of incremental construction (Alg. 2.3 lines 3–8): add `x`,
@@ -191,9 +201,24 @@ impl Chain {
         reconnected.clear();
         self.connect(slot)?;
         reconnected.push(slot as u32);
-        // Near(z, S_n): the set ConnectState(z) just used.
+        // Near(z, S_n): the set ConnectState(z) just used. Advected form:
+        // the states whose advected neighbourhoods may now contain z, i.e.
+        // the neighbours of the upstream point z − m(z).
         let mut near = std::mem::take(&mut self.near_list);
         near.clear();
+        if self.cfg.step.is_some() {
+            let d = self.dim;
+            let mut up = [0.0; MAX_INDEX_DIM];
+            for c in 0..d {
+                up[c] = x[c] - self.adv[slot * d + c];
+            }
+            let k = match self.cfg.near {
+                NearRule::Knn { .. } => self.knn_k(self.len()),
+                NearRule::Radius { .. } => self.neigh.len().max(1),
+            };
+            self.index.nearest(&up[..d], k + 1, &mut self.neigh);
+            self.neigh.retain(|e| e.0 as usize != slot);
+        }
         near.extend(self.neigh.iter().map(|x| x.0));
         for &j in &near {
             self.connect(j as usize)?;
@@ -272,6 +297,10 @@ impl Chain {
         self.ff.extend_from_slice(&ff[..d * d]);
         self.chol.extend_from_slice(&l[..d * d]);
         self.chol_ok.push(ok);
+        if let Some(tau) = self.cfg.step {
+            let m = self.flow_displacement(model, x, tau);
+            self.adv.extend_from_slice(&m[..d]);
+        }
         self.trans.push_row();
         Ok(slot)
     }
@@ -292,7 +321,46 @@ impl Chain {
         self.ff.truncate(n * d * d);
         self.chol.truncate(n * d * d);
         self.chol_ok.truncate(n);
+        if self.cfg.step.is_some() {
+            self.adv.truncate(n * d);
+        }
         self.trans.pop_row();
+    }
+
+    /// Displacement of the deterministic flow ẋ = f(x, u₀) over τ (one
+    /// classical RK4 step), the mean of the advected kernel.
+    fn flow_displacement<M: SdeModel + ?Sized>(
+        &self,
+        model: &M,
+        x: &[f64],
+        tau: f64,
+    ) -> [f64; MAX_STATE] {
+        let d = self.dim;
+        let u = &self.cfg.control[..self.control_len];
+        let mut k = [[0.0; MAX_STATE]; 4];
+        let mut y = [0.0; MAX_STATE];
+        model.drift(x, u, &mut k[0][..d]);
+        for (stage, h) in [(1usize, 0.5), (2, 0.5), (3, 1.0)] {
+            for c in 0..d {
+                y[c] = x[c] + h * tau * k[stage - 1][c];
+            }
+            let (a, b) = k.split_at_mut(stage);
+            let _ = a;
+            model.drift(&y[..d], u, &mut b[0][..d]);
+        }
+        let mut m = [0.0; MAX_STATE];
+        for c in 0..d {
+            let v = tau / 6.0 * (k[0][c] + 2.0 * k[1][c] + 2.0 * k[2][c] + k[3][c]);
+            m[c] = if v.is_finite() { v } else { 0.0 };
+        }
+        m
+    }
+
+    /// Flow displacement m(z) over τ at slot i (advected construction).
+    pub fn advection_at(&self, i: usize) -> Option<&[f64]> {
+        self.cfg
+            .step
+            .map(|_| &self.adv[i * self.dim..(i + 1) * self.dim])
     }
 
     /// Neighbour count of the k-NN rule at size n.
@@ -328,10 +396,19 @@ impl Chain {
             a
         };
         let x = &x[..d];
+        // Query centre: z, or the advected point z + m(z).
+        let mut centre = [0.0; MAX_INDEX_DIM];
+        centre[..d].copy_from_slice(x);
+        if self.cfg.step.is_some() {
+            for c in 0..d {
+                centre[c] += self.adv[i * d + c];
+            }
+        }
+        let q = &centre[..d];
         let r = match self.cfg.near {
             NearRule::Knn { .. } => {
                 let k = self.knn_k(n);
-                self.index.nearest(x, k + 1, &mut self.neigh);
+                self.index.nearest(q, k + 1, &mut self.neigh);
                 if let Some(pos) = self.neigh.iter().position(|e| e.0 as usize == i) {
                     self.neigh.remove(pos);
                 } else {
@@ -341,7 +418,7 @@ impl Chain {
             }
             NearRule::Radius { .. } => {
                 let r = self.rule_radius(n);
-                self.index.within(x, r, &mut self.neigh);
+                self.index.within(q, r, &mut self.neigh);
                 self.neigh.retain(|e| e.0 as usize != i);
                 if let Some(maxd) = self.cfg.max_degree {
                     if self.neigh.len() > maxd {
@@ -353,10 +430,34 @@ impl Chain {
                 r
             }
         };
+        let (fnorm, dnorm) = (self.drift_norm[i], self.diff_norm[i]);
+        // Advected form: the Near ball must hold the diffusion's spread
+        // √(‖FFᵀ‖τ) or the covariance cannot be matched (fixed τ, unlike
+        // the thesis's Δt ∝ r²). Widen it to ADVECTED_SPREAD standard
+        // deviations and keep an evenly strided subset by distance.
+        let mut r = r;
+        let mut near_total = self.neigh.len();
+        if let Some(tau) = self.cfg.step {
+            let rho = ADVECTED_SPREAD * (dnorm * tau).sqrt();
+            if r < rho {
+                self.index.within(q, rho, &mut self.neigh);
+                self.neigh.retain(|e| e.0 as usize != i);
+                self.neigh
+                    .sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+                near_total = self.neigh.len();
+                let cap = MAX_LP_NEIGHBOURS;
+                if near_total > cap {
+                    for j in 0..cap {
+                        self.neigh[j] = self.neigh[j * near_total / cap];
+                    }
+                    self.neigh.truncate(cap);
+                }
+                r = rho;
+            }
+        }
         self.stats.connects += 1;
         self.radius[i] = r;
-        self.near_count[i] = self.neigh.len() as u32;
-        let (fnorm, dnorm) = (self.drift_norm[i], self.diff_norm[i]);
+        self.near_count[i] = near_total as u32;
         if self.neigh.is_empty() || !(r > 0.0) || (fnorm == 0.0 && dnorm == 0.0) {
             // No neighbour, or no dynamics at z: absorbing.
             self.neigh.clear();
@@ -365,13 +466,26 @@ impl Chain {
             self.stats.absorbing += 1;
             return Ok(());
         }
-        let dt = holding_time(
-            r,
-            dnorm,
-            fnorm,
-            self.cfg.kappa_diffusion,
-            self.cfg.kappa_drift,
-        );
+        let dt = match self.cfg.step {
+            Some(tau) => tau,
+            None => holding_time(
+                r,
+                dnorm,
+                fnorm,
+                self.cfg.kappa_diffusion,
+                self.cfg.kappa_drift,
+            ),
+        };
+        let mut mean = [0.0; MAX_STATE];
+        match self.cfg.step {
+            Some(_) => mean[..d].copy_from_slice(&self.adv[i * d..(i + 1) * d]),
+            None => {
+                for c in 0..d {
+                    mean[c] = self.drift[i * d + c] * dt;
+                }
+            }
+        }
+        let mean = &mean[..d];
         if self.cfg.kernel == KernelKind::MomentMatched && self.neigh.len() > MAX_LP_NEIGHBOURS {
             self.neigh
                 .sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
@@ -399,14 +513,33 @@ impl Chain {
         };
         let holding = match self.cfg.kernel {
             KernelKind::Gaussian => {
-                if !gaussian(d, &self.dz, dt, &dynl, &mut self.work, &mut self.pbuf) {
+                if !gaussian_at(d, &self.dz, mean, dt, &dynl, &mut self.work, &mut self.pbuf) {
                     return Err(ChainError::SingularDiffusion);
                 }
                 self.stats.gaussian += 1;
                 dt
             }
             KernelKind::MomentMatched => {
-                let fit = moment_matched(d, &self.dz, dt, r, &dynl, &mut self.work, &mut self.pbuf);
+                // Rows scaled by the extent of the displacements.
+                let scale = match self.cfg.step {
+                    Some(_) => r + mean.iter().map(|v| v * v).sum::<f64>().sqrt(),
+                    None => r,
+                };
+                let fit = moment_matched_at(
+                    d,
+                    &self.dz,
+                    mean,
+                    dt,
+                    scale,
+                    if self.cfg.step.is_some() {
+                        ADVECTED_MEAN_ROW_WEIGHT
+                    } else {
+                        MEAN_ROW_WEIGHT
+                    },
+                    &dynl,
+                    &mut self.work,
+                    &mut self.pbuf,
+                );
                 match fit.outcome {
                     KernelOutcome::Exact => self.stats.exact += 1,
                     KernelOutcome::LeastSquares => self.stats.least_squares += 1,
@@ -434,6 +567,27 @@ impl Chain {
         self.holding[i] = holding;
         self.trans.set_row(i, &self.cbuf[..w], &self.pbuf[..w]);
         Ok(())
+    }
+
+    /// ConnectState (Alg. 2.2) again for slot `i` with the current n (e.g.
+    /// after some of its neighbours were retired; see [`super::retire`]).
+    pub fn reconnect(&mut self, i: usize) -> Result<(), ChainError> {
+        if i >= self.len() {
+            return Err(ChainError::State("slot out of range"));
+        }
+        self.connect(i)
+    }
+
+    /// Make the next new state's id at least `next` (ids are never reused,
+    /// also across [`Self::from_view`] of a chain whose newest states were
+    /// removed).
+    pub fn reserve_ids(&mut self, next: u32) {
+        self.next_id = self.next_id.max(next);
+    }
+
+    /// The id the next new state gets.
+    pub fn next_id(&self) -> u32 {
+        self.next_id
     }
 
     /// Import a snapshot (e.g. one received from another process); the

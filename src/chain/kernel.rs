@@ -47,6 +47,11 @@ use super::nnls::{MinChange, Nnls, MAX_COLS, MAX_ROWS};
 pub const MAX_LP_NEIGHBOURS: usize = MAX_COLS - 1;
 /// Weight of the mean rows relative to the second-moment rows in NNLS.
 pub const MEAN_ROW_WEIGHT: f64 = 4.0;
+/// Weight of the mean rows in the advected construction: there the
+/// second moment is usually infeasible (F Fᵀ τ below the interpolation
+/// variance of the neighbours), and the fit must keep the drift exact and
+/// add as little variance as possible rather than trade drift for variance.
+pub const ADVECTED_MEAN_ROW_WEIGHT: f64 = 30.0;
 /// Weight of the Σ p = 1 row in NNLS.
 const SUM_ROW_WEIGHT: f64 = 100.0;
 /// Feasibility tolerance on the scaled equations.
@@ -128,6 +133,25 @@ pub fn gaussian(
     work: &mut KernelWork,
     p: &mut [f64],
 ) -> bool {
+    let mut mean = [0.0f64; 16];
+    for i in 0..d {
+        mean[i] = dynl.f[i] * dt;
+    }
+    gaussian_at(d, dz, &mean[..d], dt, dynl, work, p)
+}
+
+/// Gaussian weights N(Δz_k; `mean`, FFᵀΔt) normalised over the K
+/// neighbours (the advected form of [`gaussian`], `mean` being the flow's
+/// displacement over Δt). Requires `dynl.chol`.
+pub fn gaussian_at(
+    d: usize,
+    dz: &[f64],
+    mean: &[f64],
+    dt: f64,
+    dynl: &LocalDyn,
+    work: &mut KernelWork,
+    p: &mut [f64],
+) -> bool {
     let Some(l) = dynl.chol else {
         return false;
     };
@@ -138,7 +162,7 @@ pub fn gaussian(
     let mut y = [0.0f64; 16];
     for j in 0..k {
         for i in 0..d {
-            y[i] = dz[j * d + i] - dynl.f[i] * dt;
+            y[i] = dz[j * d + i] - mean[i];
         }
         // q = yᵀ (LLᵀ)⁻¹ y / Δt = |L⁻¹ y|² / Δt
         let mut q = 0.0;
@@ -188,6 +212,29 @@ pub fn moment_matched(
     work: &mut KernelWork,
     p: &mut [f64],
 ) -> MomentFit {
+    let mut mean = [0.0f64; 16];
+    for i in 0..d {
+        mean[i] = dynl.f[i] * dt;
+    }
+    moment_matched_at(d, dz, &mean[..d], dt, r, MEAN_ROW_WEIGHT, dynl, work, p)
+}
+
+/// The moment-matching kernel with a given mean displacement `mean` (the
+/// advected form: the flow's displacement over Δt instead of fΔt):
+/// Σ p_k Δz_k = mean, Σ p_k Δz_k Δz_kᵀ = F Fᵀ Δt + mean meanᵀ.
+/// `mean_weight` weights the mean rows in the least-violation fit.
+#[allow(clippy::too_many_arguments)]
+pub fn moment_matched_at(
+    d: usize,
+    dz: &[f64],
+    mean: &[f64],
+    dt: f64,
+    r: f64,
+    mean_weight: f64,
+    dynl: &LocalDyn,
+    work: &mut KernelWork,
+    p: &mut [f64],
+) -> MomentFit {
     let k = dz.len() / d;
     debug_assert!(k <= MAX_LP_NEIGHBOURS);
     let nsec = d * (d + 1) / 2;
@@ -198,7 +245,7 @@ pub fn moment_matched(
     // Prior: Gaussian weights if available, else uniform, for the jumps;
     // the self-loop prior is 0.
     work.prior[0] = 0.0;
-    if !gaussian(d, dz, dt, dynl, work, &mut p[..k]) {
+    if !gaussian_at(d, dz, mean, dt, dynl, work, &mut p[..k]) {
         p[..k].fill(1.0 / k as f64);
     }
     work.prior[1..cols].copy_from_slice(&p[..k]);
@@ -224,12 +271,12 @@ pub fn moment_matched(
     let b = &mut work.b[..m];
     b[0] = 1.0;
     for i in 0..d {
-        b[1 + i] = dynl.f[i] * dt * inv_r;
+        b[1 + i] = mean[i] * inv_r;
     }
     let mut row = 1 + d;
     for i in 0..d {
         for c in i..d {
-            b[row] = (dynl.ff[i + c * d] * dt + dynl.f[i] * dynl.f[c] * dt * dt) * inv_r2;
+            b[row] = (dynl.ff[i + c * d] * dt + mean[i] * mean[c]) * inv_r2;
             row += 1;
         }
     }
@@ -247,12 +294,12 @@ pub fn moment_matched(
         for j in 0..cols {
             a[j * m] *= SUM_ROW_WEIGHT;
             for i in 0..d {
-                a[j * m + 1 + i] *= MEAN_ROW_WEIGHT;
+                a[j * m + 1 + i] *= mean_weight;
             }
         }
         b[0] *= SUM_ROW_WEIGHT;
         for i in 0..d {
-            b[1 + i] *= MEAN_ROW_WEIGHT;
+            b[1 + i] *= mean_weight;
         }
         let res = work.nnls.solve(a, m, cols, b, x);
         if res <= FEAS_TOL {
@@ -263,7 +310,7 @@ pub fn moment_matched(
     let jump: f64 = x[1..].iter().sum();
     if !(jump > 1e-12 * total) || !total.is_finite() {
         // Degenerate fit (all mass on the self-loop): fall back to Gaussian.
-        if !gaussian(d, dz, dt, dynl, work, &mut p[..k]) {
+        if !gaussian_at(d, dz, mean, dt, dynl, work, &mut p[..k]) {
             p[..k].fill(1.0 / k as f64);
         }
         return MomentFit {

@@ -28,7 +28,9 @@ pub mod index;
 pub mod kernel;
 pub mod linalg;
 pub mod nnls;
+pub mod retire;
 pub mod sample;
+pub mod snapshot;
 pub mod storage;
 
 pub use build::{Chain, ChainStats};
@@ -78,6 +80,12 @@ pub struct ChainConfig {
     /// The control u₀ held while building (length = model control dim; the
     /// thesis builds uncontrolled chains, u₀ = 0).
     pub control: [f64; MAX_CONTROL],
+    /// Advected ("semi-Lagrangian") construction with a common holding time
+    /// τ (see [`build`]): Δt(z) = τ for every state, Near is taken around
+    /// the advected point z + m(z), m(z) the RK4 flow displacement over τ,
+    /// and the kernel matches mean m(z) and covariance F Fᵀ τ. `None`: the
+    /// thesis's per-state Δt(z) and Near around z.
+    pub step: Option<f64>,
 }
 
 impl ChainConfig {
@@ -92,6 +100,7 @@ impl ChainConfig {
             kappa_diffusion: 1.0,
             kappa_drift: 1.0,
             control: [0.0; MAX_CONTROL],
+            step: None,
         }
     }
 
@@ -107,6 +116,13 @@ impl ChainConfig {
             kappa_drift: 2.0,
             ..Self::gaussian(dim)
         }
+    }
+
+    /// Advected construction with common holding time τ (use the filter's
+    /// observation period or a power-of-two fraction of it).
+    pub fn with_step(mut self, tau: f64) -> Self {
+        self.step = Some(tau);
+        self
     }
 
     /// Replace the Near rule.
@@ -135,6 +151,11 @@ impl ChainConfig {
         }
         if self.max_degree == Some(0) {
             return Err(ChainError::Config("max_degree must be positive"));
+        }
+        if let Some(tau) = self.step {
+            if !(tau.is_finite() && tau > 0.0) {
+                return Err(ChainError::Config("step τ must be positive and finite"));
+            }
         }
         if self.control.iter().any(|v| !v.is_finite()) {
             return Err(ChainError::Config("reference control must be finite"));

@@ -60,6 +60,18 @@ impl WaypointTracker {
         (pos[0] - g[0]).hypot(pos[1] - g[1])
     }
 
+    /// Continue a route after a restart: make the waypoint equal to `goal`
+    /// active (the first one if none is) with `reached` waypoints reached.
+    pub fn resume_at(&mut self, goal: [f64; 2], reached: u64) {
+        self.active = self
+            .cfg
+            .waypoints
+            .iter()
+            .position(|w| *w == goal)
+            .unwrap_or(0);
+        self.reached = reached;
+    }
+
     /// Advance if `pos` reached the active waypoint; returns true on a switch.
     pub fn update(&mut self, pos: [f64; 2]) -> bool {
         if self.finished || self.distance(pos) > self.cfg.reach_radius {

@@ -237,10 +237,14 @@ pub fn median(v: &[f64]) -> f64 {
 /// "the mean and variance of the prior ... propagated ... used to
 /// concentrate samples"; here the propagation is by simulation, so it
 /// follows nonlinear flows such as a limit cycle): `n` points, each with
-/// probability `uniform_fraction` uniform on S, otherwise the state at a
-/// uniform random time in [0, `horizon`] of a trajectory started from the
-/// prior (trajectories of `horizon / 20` are reused for 20 points each).
-/// Data-free, so a chain built on them can serve every run.
+/// probability `uniform_fraction` uniform on S, with probability
+/// [`PRIOR_FRACTION`] drawn from the prior, otherwise uniform in *arc
+/// length* along trajectories of the SDE started from the prior and run to
+/// `horizon` (linear interpolation between their Euler–Maruyama steps of
+/// `max_dt`). Arc length rather than time: a chain needs states where the
+/// state moves fast as much as where it lingers (a transition can only
+/// reach existing states), and time-uniform points starve the fast parts of
+/// a limit cycle. Data-free, so a chain built on them can serve every run.
 pub fn predictive_points<M: SdeModel>(
     model: &M,
     prior: &Gaussian,
@@ -253,31 +257,60 @@ pub fn predictive_points<M: SdeModel>(
     use rand::RngExt;
     let d = prior.dim;
     let u = vec![0.0; model.dims().control];
+    let trajs = (n / 50).clamp(20, 400);
+    let steps = ((horizon / max_dt).ceil() as usize).max(1);
+    let h = horizon / steps as f64;
+    // path points and cumulative arc length, trajectory after trajectory
+    let mut path = Vec::with_capacity(trajs * (steps + 1) * d);
+    let mut cum = Vec::with_capacity(trajs * (steps + 1));
+    let mut s = 0.0;
+    for _ in 0..trajs {
+        let mut x = draw_from(model, prior, rng);
+        path.extend_from_slice(&x);
+        cum.push(s); // zero-length link from the previous trajectory's end
+        for _ in 0..steps {
+            let prev = x.clone();
+            em_integrate(model, &mut x, &u, h, max_dt, rng);
+            model.bounds().project(&mut x);
+            s += prev
+                .iter()
+                .zip(&x)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
+                .sqrt();
+            path.extend_from_slice(&x);
+            cum.push(s);
+        }
+    }
     let mut out = Vec::with_capacity(n * d);
     let mut x = vec![0.0; d];
-    let mut left = 0usize;
-    let seg = horizon / 20.0;
     while out.len() < n * d {
-        if rng.random::<f64>() < uniform_fraction {
+        let a = rng.random::<f64>();
+        if a < uniform_fraction {
             model.bounds().sample_uniform(rng, &mut x);
-            out.extend_from_slice(&x);
-            continue;
-        }
-        if left == 0 {
-            // restart a trajectory from the prior at a random time
+        } else if a < uniform_fraction + PRIOR_FRACTION || !(s > 0.0) {
             x = draw_from(model, prior, rng);
-            let t0 = rng.random_range(0.0..horizon);
-            em_integrate(model, &mut x, &u, t0, max_dt, rng);
-            model.bounds().project(&mut x);
-            left = 20;
+        } else {
+            let t = rng.random::<f64>() * s;
+            // first index with cum > t (≥ 1 since cum[0] = 0 ≤ t)
+            let j = cum.partition_point(|&c| c <= t).clamp(1, cum.len() - 1);
+            let len = cum[j] - cum[j - 1];
+            let w = if len > 0.0 {
+                (t - cum[j - 1]) / len
+            } else {
+                0.0
+            };
+            for c in 0..d {
+                x[c] = (1.0 - w) * path[(j - 1) * d + c] + w * path[j * d + c];
+            }
         }
-        em_integrate(model, &mut x, &u, seg * rng.random::<f64>(), max_dt, rng);
-        model.bounds().project(&mut x);
         out.extend_from_slice(&x);
-        left -= 1;
     }
     out
 }
+
+/// Fraction of [`predictive_points`] drawn from the prior itself.
+pub const PRIOR_FRACTION: f64 = 0.05;
 
 /// Run the chain filter `cf`, a bootstrap PF (`pf_cfg`, reseeded per run),
 /// the EKF and the UKF over `runs` simulated records of `steps` periods of

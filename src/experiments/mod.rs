@@ -6,6 +6,7 @@
 //! (`{"experiment", "params", "results": [{"method", <metric>...}], "paper": [...]}`),
 //! and prints the same numbers as a table.
 
+pub mod anytime;
 pub mod arm;
 pub mod chain_util;
 pub mod convergence;
@@ -102,6 +103,11 @@ pub fn all() -> Vec<Experiment> {
             name: "arm",
             about: "paper 003 Fig. 4: path-integral control of the two-link arm with a wrong payload (m1 = 1.4) vs the exact optimal controller",
             run: arm::run,
+        },
+        Experiment {
+            name: "anytime",
+            about: "issue 4: the live chain grown by refine while the chain backend filters the ship — error per second vs the offline chain filter at the same size and the PF",
+            run: anytime::run,
         },
         Experiment {
             name: "ship-control",

@@ -34,6 +34,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let n = p.usize(&mut rep, "states", 4000)?;
     let particles = p.usize(&mut rep, "particles", 100)?;
     let c_knn = p.f64(&mut rep, "knn_c", 1.5)?;
+    let step = p.f64(&mut rep, "step_s", dt)?;
     p.finish()?;
     rep.param("phi_true", 0.5);
     rep.param("prior", "x ~ N(1, 0.2^2), phi ~ N(0.8, 1)");
@@ -48,6 +49,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let t0 = std::time::Instant::now();
     let mut cfg = ChainConfig::moment_matched(2);
     cfg.near = NearRule::Knn { c: c_knn };
+    cfg.step = (step > 0.0).then_some(step);
     let chain = Chain::sample_batch(
         &model,
         cfg,

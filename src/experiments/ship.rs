@@ -35,6 +35,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let particles = p.usize(&mut rep, "particles", 100)?;
     let c_knn = p.f64(&mut rep, "knn_c", 1.5)?;
     let uniform_fraction = p.f64(&mut rep, "uniform_fraction", 0.1)?;
+    let step = p.f64(&mut rep, "step_s", dt)?;
+    let flush = p.f64(&mut rep, "flush", 1e-12)?;
     p.finish()?;
     rep.param("e", 0.3);
     rep.param("e1_e2_continuous", 0.03);
@@ -48,8 +50,10 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let pts = predictive_points(&model, &prior, t_end, n, uniform_fraction, dt, &mut rng);
     let mut cfg = ChainConfig::moment_matched(4);
     cfg.near = NearRule::Knn { c: c_knn };
+    cfg.step = (step > 0.0).then_some(step);
     let chain = Chain::batch(&model, cfg, &pts)?;
     let mut cf = ChainFilter::new(model.clone(), chain, dt)?;
+    cf.set_flush(flush);
     let build_s = t0.elapsed().as_secs_f64();
     let pf_cfg = PfConfig {
         particles,

@@ -20,6 +20,7 @@ use crate::filter::chain_filter::prior_weights;
 use crate::filter::pf::{Pf, PfConfig};
 use crate::filter::smoother::smooth;
 use crate::model::vanderpol::{VanDerPol, VanDerPolParams};
+use crate::model::SdeModel;
 use crate::rng::stream;
 
 pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
@@ -32,21 +33,29 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let dt = p.f64(&mut rep, "obs_period_s", 0.01)?;
     let n = p.usize(&mut rep, "states", 5000)?;
     let particles = p.usize(&mut rep, "particles", 1000)?;
+    let step = p.f64(&mut rep, "step_s", dt)?;
+    let sampling = p.choice(
+        &mut rep,
+        "sampling",
+        "predictive",
+        &["predictive", "uniform"],
+    )?;
     p.finish()?;
     rep.param("prior", "N((0.5, 0), 0.2^2 I)");
-    rep.param("kernel", "moment_matched, uniform states");
+    rep.param("kernel", "moment_matched");
     let model = VanDerPol::new(VanDerPolParams::default()).map_err(anyhow::Error::msg)?;
     let prior = Gaussian::diagonal(&[0.5, 0.0], &[0.2, 0.2]);
     let steps = (t_end / dt).round() as usize;
     let mut cfg = ChainConfig::moment_matched(2);
     cfg.near = NearRule::Knn { c: 1.5 };
-    let mut chain = Chain::sample_batch(
-        &model,
-        cfg,
-        &Sampler::Uniform,
-        n,
-        &mut stream(args.seed, 66),
-    )?;
+    cfg.step = (step > 0.0).then_some(step);
+    let mut srng = stream(args.seed, 66);
+    let pts = if sampling == "uniform" {
+        Sampler::Uniform.sample_many(model.bounds(), n, &mut srng)
+    } else {
+        super::chain_util::predictive_points(&model, &prior, t_end, n, 0.1, dt, &mut srng)
+    };
+    let mut chain = Chain::batch(&model, cfg, &pts)?;
     let mut eq = crate::chain::TimeEqualized::new(dt)?;
     eq.fit(chain.holding());
     let mut w0 = vec![0.0; n];

@@ -46,7 +46,11 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let e = p.f64(&mut rep, "process_noise", 0.1)?;
     let n_chain = p.usize(&mut rep, "states", 1000)?;
     let particles = p.usize(&mut rep, "particles", 100)?;
-    let chain_sizes = p.list(&mut rep, "curve_states", &[150, 300, 600, 1000, 2000, 4000])?;
+    let chain_sizes = p.list(
+        &mut rep,
+        "curve_states",
+        &[500, 1000, 2000, 3000, 4000, 8000],
+    )?;
     let pf_sizes = p.list(&mut rep, "curve_particles", &[25, 50, 100, 200, 400, 1000])?;
     let c_knn = p.f64(&mut rep, "knn_c", 1.5)?;
     let kernel = p.choice(
@@ -63,6 +67,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     )?;
     let uniform_fraction = p.f64(&mut rep, "uniform_fraction", 0.1)?;
     let kappa_drift = p.f64(&mut rep, "kappa_drift", 2.0)?;
+    let step = p.f64(&mut rep, "step_s", dt)?;
+    let flush = p.f64(&mut rep, "flush", 1e-12)?;
     p.finish()?;
     rep.param("mu", 2.0);
     rep.param("prior", "N((0.5, 0), 0.2^2 I)");
@@ -96,6 +102,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         if kernel != "gaussian" {
             cfg.kappa_drift = kappa_drift;
         }
+        cfg.step = (step > 0.0).then_some(step);
         let t0 = std::time::Instant::now();
         let mut rng = stream(args.seed, 9_000 + n as u64);
         let pts = if sampling == "uniform" {
@@ -104,7 +111,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             predictive_points(&model, &prior, t_end, n, uniform_fraction, dt, &mut rng)
         };
         let chain = Chain::batch(&model, cfg, &pts)?;
-        let f = ChainFilter::new(model.clone(), chain, dt)?;
+        let mut f = ChainFilter::new(model.clone(), chain, dt)?;
+        f.set_flush(flush);
         build_s.push(t0.elapsed().as_secs_f64());
         filters.push(f);
     }

@@ -16,6 +16,7 @@ pub mod decoder;
 pub mod ekf;
 pub mod gauss;
 pub mod kalman;
+pub mod live_chain;
 pub mod pf;
 pub mod resample;
 pub mod smoother;

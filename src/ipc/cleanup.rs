@@ -128,6 +128,15 @@ pub fn resources(prefix: &str) -> Vec<PathBuf> {
     out
 }
 
+/// The files of `prefix` in `/dev/shm` only (shared-memory segments).
+pub fn shm_files(prefix: &str) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    if !prefix.is_empty() {
+        collect(Path::new(SHM_DIR), prefix, 0, &mut out);
+    }
+    out
+}
+
 /// Remove every resource of `prefix`: stale resources of dead nodes through
 /// iceoryx2, then — if no node of the prefix is alive — every file left.
 pub fn remove_prefix(prefix: &str) -> Result<CleanupReport, IpcError> {

@@ -546,6 +546,17 @@ pub struct StageStats {
     /// `control_cost_time_s` (0: no data).
     pub control_cost: f64,
     pub control_cost_time_s: f64,
+    /// Chain (issue 4). Filter: versions installed; refine: published.
+    pub chain_versions: u64,
+    /// Chain states (filter: of the active version; refine: current size).
+    pub chain_states: u64,
+    /// δ of the active (filter) or last published (refine) chain, s.
+    pub chain_delta_s: f64,
+    /// Filter: duration of a version swap, p50 and p99, ns.
+    pub chain_swap_p50_ns: u64,
+    pub chain_swap_p99_ns: u64,
+    /// Filter: largest belief mass lost in a remap (before renormalisation).
+    pub chain_mass_lost_max: f64,
 }
 
 impl Default for StageStats {
@@ -574,6 +585,12 @@ impl Default for StageStats {
             response_max_ns: 0,
             control_cost: 0.0,
             control_cost_time_s: 0.0,
+            chain_versions: 0,
+            chain_states: 0,
+            chain_delta_s: 0.0,
+            chain_swap_p50_ns: 0,
+            chain_swap_p99_ns: 0,
+            chain_mass_lost_max: 0.0,
         }
     }
 }

@@ -30,7 +30,7 @@ mod wait;
 pub use messages::*;
 pub use ports::{Message, Publisher, Qos, Subscriber};
 pub use signals::install_stop_handler;
-pub use slice::{SliceElem, SlicePublisher, SliceQos, SliceSubscriber};
+pub use slice::{SliceElem, SlicePublisher, SliceQos, SliceSample, SliceSubscriber};
 pub use wait::{run_loop, Wake, WakeMode, Wakeable, STOP_POLL};
 
 use iceoryx2::prelude::*;

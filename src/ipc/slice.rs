@@ -204,6 +204,29 @@ impl<T: SliceElem> Debug for SliceSubscriber<T> {
     }
 }
 
+/// A received slice held in place until dropped (the chain filter reads its
+/// active snapshot from it for as long as it filters on it). While held, the
+/// publisher cannot reuse that memory; a subscriber may hold at most the
+/// service's `subscriber_max_borrowed_samples` (iceoryx2 default 2) at once,
+/// and a held sample stays mapped even if its publisher dies.
+pub struct SliceSample<T: SliceElem> {
+    sample: iceoryx2::sample::Sample<ipc::Service, [T], ()>,
+}
+
+impl<T: SliceElem> Debug for SliceSample<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SliceSample")
+            .field("len", &self.sample.payload().len())
+            .finish()
+    }
+}
+
+impl<T: SliceElem> AsRef<[T]> for SliceSample<T> {
+    fn as_ref(&self) -> &[T] {
+        self.sample.payload()
+    }
+}
+
 impl<T: SliceElem> SliceSubscriber<T> {
     /// Read the oldest unread slice in place with `read`; the sample is
     /// released when `read` returns.
@@ -211,6 +234,18 @@ impl<T: SliceElem> SliceSubscriber<T> {
         match self.subscriber.receive() {
             Ok(Some(s)) => Ok(Some(read(s.payload()))),
             Ok(None) => Ok(None),
+            Err(e) => Err(IpcError::Receive {
+                service: self.service.clone(),
+                reason: format!("{e:?}"),
+            }),
+        }
+    }
+
+    /// Take the oldest unread slice and hold it in place (see
+    /// [`SliceSample`]).
+    pub fn receive_sample(&self) -> Result<Option<SliceSample<T>>, IpcError> {
+        match self.subscriber.receive() {
+            Ok(s) => Ok(s.map(|sample| SliceSample { sample })),
             Err(e) => Err(IpcError::Receive {
                 service: self.service.clone(),
                 reason: format!("{e:?}"),

@@ -194,6 +194,8 @@ pub enum FilterBackend {
     Pf,
     Ekf,
     Ukf,
+    /// The Markov-chain filter on the refine stage's live snapshots.
+    Chain,
 }
 
 impl FilterBackend {
@@ -202,6 +204,7 @@ impl FilterBackend {
             FilterBackend::Pf => "pf",
             FilterBackend::Ekf => "ekf",
             FilterBackend::Ukf => "ukf",
+            FilterBackend::Chain => "chain",
         }
     }
 }
@@ -221,6 +224,40 @@ pub struct FilterConfig {
     pub ekf: EkfConfig,
     #[serde(default)]
     pub ukf: UkfConfig,
+    #[serde(default)]
+    pub chain: ChainFilterConfig,
+    /// Freshest-data policy under overload: an observation that waited
+    /// longer than this (µs since ingest published it) while a newer one is
+    /// queued is skipped and counted as dropped, so a filter slower than the
+    /// sensor keeps its latency bounded (0: filter every observation).
+    #[serde(default = "default_max_obs_age")]
+    pub max_obs_age_us: f64,
+}
+
+fn default_max_obs_age() -> f64 {
+    50_000.0
+}
+
+/// `[filter.chain]`: the chain backend (issue 4).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChainFilterConfig {
+    /// Time per filter step (µs) spent preparing a newly received chain
+    /// version (validation, observation means) before swapping to it.
+    #[serde(default = "default_prepare_budget")]
+    pub prepare_budget_us: f64,
+}
+
+fn default_prepare_budget() -> f64 {
+    200.0
+}
+
+impl Default for ChainFilterConfig {
+    fn default() -> Self {
+        Self {
+            prepare_budget_us: default_prepare_budget(),
+        }
+    }
 }
 
 /// Controller backends.
@@ -281,24 +318,141 @@ pub struct ControlConfig {
     pub max_belief_age_us: f64,
 }
 
-/// `[refine]`: the anytime chain refinement (issue 4 fills it in).
+/// `[refine]`: the anytime chain refinement (issue 4).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RefineConfig {
-    /// Period of its housekeeping tick (ms).
+    /// Period of its work rounds (ms).
     #[serde(default = "default_refine_period")]
     pub period_ms: f64,
+    /// Time spent growing the chain per round (ms, at most `period_ms`).
+    #[serde(default = "default_refine_work")]
+    pub work_ms: f64,
+    /// Snapshot cadence (ms).
+    #[serde(default = "default_publish_period")]
+    pub publish_period_ms: f64,
+    /// Bound on the chain size (also sizes the snapshot service).
+    #[serde(default = "default_max_states")]
+    pub max_states: usize,
+    /// States of the first (batch) chain, around the prior.
+    #[serde(default = "default_initial_states")]
+    pub initial_states: usize,
+    /// Fraction of `max_states` retired when the bound is reached.
+    #[serde(default = "default_retire_fraction")]
+    pub retire_fraction: f64,
+    /// New states: N(mean(τ), (inflate·σ)²) around the belief mean
+    /// propagated by the drift for τ ~ U[0, horizon_s] ...
+    #[serde(default = "default_inflate")]
+    pub inflate: f64,
+    #[serde(default = "default_horizon")]
+    pub horizon_s: f64,
+    /// ... mixed with this fraction of uniform draws on the model's bounds.
+    #[serde(default = "default_uniform_fraction")]
+    pub uniform_fraction: f64,
+    /// Floor on the sampling std per state component, as a fraction of the
+    /// bounds' width (a collapsed belief still gets a neighbourhood).
+    #[serde(default = "default_min_std_fraction")]
+    pub min_std_fraction: f64,
+    /// k-NN Near rule constant: k = max(⌈c log n⌉, 1 + d + d(d+1)/2 + 1).
+    #[serde(default = "default_knn_c")]
+    pub knn_c: f64,
 }
 
 fn default_refine_period() -> f64 {
-    100.0
+    50.0
+}
+fn default_refine_work() -> f64 {
+    40.0
+}
+fn default_publish_period() -> f64 {
+    200.0
+}
+fn default_max_states() -> usize {
+    4000
+}
+fn default_initial_states() -> usize {
+    500
+}
+fn default_retire_fraction() -> f64 {
+    0.1
+}
+fn default_inflate() -> f64 {
+    3.0
+}
+fn default_horizon() -> f64 {
+    0.5
+}
+fn default_uniform_fraction() -> f64 {
+    0.02
+}
+fn default_min_std_fraction() -> f64 {
+    0.01
+}
+fn default_knn_c() -> f64 {
+    1.5
 }
 
 impl Default for RefineConfig {
     fn default() -> Self {
         Self {
             period_ms: default_refine_period(),
+            work_ms: default_refine_work(),
+            publish_period_ms: default_publish_period(),
+            max_states: default_max_states(),
+            initial_states: default_initial_states(),
+            retire_fraction: default_retire_fraction(),
+            inflate: default_inflate(),
+            horizon_s: default_horizon(),
+            uniform_fraction: default_uniform_fraction(),
+            min_std_fraction: default_min_std_fraction(),
+            knn_c: default_knn_c(),
         }
+    }
+}
+
+impl RefineConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        positive("refine.period_ms", self.period_ms)?;
+        positive("refine.work_ms", self.work_ms)?;
+        if self.work_ms > self.period_ms {
+            return Err(ConfigError::new(
+                "refine.work_ms",
+                "must not exceed refine.period_ms",
+            ));
+        }
+        positive("refine.publish_period_ms", self.publish_period_ms)?;
+        positive("refine.inflate", self.inflate)?;
+        positive("refine.knn_c", self.knn_c)?;
+        if !(self.horizon_s.is_finite() && self.horizon_s >= 0.0) {
+            return Err(ConfigError::new("refine.horizon_s", "must be >= 0"));
+        }
+        for (k, v) in [
+            ("refine.uniform_fraction", self.uniform_fraction),
+            ("refine.min_std_fraction", self.min_std_fraction),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(ConfigError::new(k, "must be in [0, 1]"));
+            }
+        }
+        if !(self.retire_fraction > 0.0 && self.retire_fraction < 1.0) {
+            return Err(ConfigError::new(
+                "refine.retire_fraction",
+                "must be in (0, 1)",
+            ));
+        }
+        if !(100..=1_000_000).contains(&self.max_states) {
+            return Err(ConfigError::new(
+                "refine.max_states",
+                "must be between 100 and 1000000",
+            ));
+        }
+        if !(50..=self.max_states).contains(&self.initial_states) {
+            return Err(ConfigError::new(
+                "refine.initial_states",
+                "must be between 50 and refine.max_states",
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -337,6 +491,10 @@ pub struct StageRtConfig {
     /// Spin time of `wake = "spin"` (µs).
     #[serde(default = "default_spin")]
     pub spin_us: u64,
+    /// Supervision: restart policy and heartbeat deadline
+    /// (`[stages.<name>.restart]`, see [`super::supervisor`]).
+    #[serde(default)]
+    pub restart: super::supervisor::RestartPolicy,
 }
 
 fn default_spin() -> u64 {
@@ -353,6 +511,7 @@ impl Default for StageRtConfig {
             budget_us: 0.0,
             wake: WakeKind::Event,
             spin_us: default_spin(),
+            restart: Default::default(),
         }
     }
 }
@@ -708,10 +867,17 @@ impl PipelineConfig {
         f.ukf
             .validate(dims.state)
             .map_err(|e| ConfigError::new(format!("filter.ukf.{}", e.key), e.problem))?;
+        if !(f.max_obs_age_us.is_finite() && f.max_obs_age_us >= 0.0) {
+            return Err(ConfigError::new("filter.max_obs_age_us", "must be >= 0"));
+        }
 
         self.validate_control(&model)?;
 
-        positive("refine.period_ms", self.refine.period_ms)?;
+        self.refine.validate()?;
+        positive(
+            "filter.chain.prepare_budget_us",
+            self.filter.chain.prepare_budget_us,
+        )?;
 
         let cores = crate::rt::sched::available_cores();
         for kind in StageKind::ALL {
@@ -729,6 +895,9 @@ impl PipelineConfig {
             if !(s.budget_us.is_finite() && s.budget_us >= 0.0) {
                 return Err(ConfigError::new(format!("{key}.budget_us"), "must be >= 0"));
             }
+            s.restart
+                .validate()
+                .map_err(|(k, p)| ConfigError::new(format!("{key}.restart.{k}"), p))?;
         }
         Ok(())
     }

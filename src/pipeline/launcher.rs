@@ -16,8 +16,17 @@
 //!    have reported (not with `--sensor external`: then external
 //!    publishers, e.g. `beliefbus plant`, feed the pipeline). Each stage pins and prioritises itself from
 //!    `[stages.<name>]`.
-//! 4. Print a status line every second; stop on the duration, on Ctrl-C
-//!    (SIGINT/SIGTERM) or when a stage dies.
+//! 4. Print a status line every second; stop on the duration or on Ctrl-C
+//!    (SIGINT/SIGTERM). Supervise (issue 8, policy in [`super::supervisor`]):
+//!    reap a dead stage (waitpid), let iceoryx2 remove the dead node's stale
+//!    resources, restart it after its backoff with the state it resumes
+//!    from ([`super::supervisor_resume`]); kill and restart a stage whose
+//!    heartbeat (its statistics report) is overdue; with `--chaos`, kill a
+//!    random stage at the configured mean interval. Every death is printed
+//!    (`supervisor: …`) and so is every recovery — the first end-to-end
+//!    output (control; belief without a controller) derived from a sensor
+//!    sample published after the death, once the new process has reported.
+//!    A stage whose policy says not to restart ends the run.
 //! 5. Stop the plant, then the rest (SIGTERM; SIGKILL after a grace period),
 //!    reap every child, collect their final reports, remove every resource
 //!    of the prefix (iceoryx2 dead-node cleanup, then the files), print the
@@ -27,9 +36,14 @@ use super::config::{self, ControlBackend};
 use super::monitor::Monitor;
 use super::report::{ReportInput, StageEnd};
 use super::stage_main::BUILD_ID;
+use super::supervisor::{Chaos, Death, Decision, GiveUpReason, RestartState};
+use super::supervisor_resume::{Resume, ResumeBelief, ResumeControl, ResumeTruth};
+use super::supervisor_timeline::{Sample, Timeline};
 use super::PipelineConfig;
 use crate::ipc::{self, cleanup, Bus, BusConfig, Hop, StageKind};
+use crate::rt::clock::now_ns;
 use anyhow::{bail, Context, Result};
+use serde_json::{json, Value};
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus};
@@ -59,6 +73,16 @@ pub struct RunOptions {
     pub sets: Vec<String>,
     /// No status line every second.
     pub quiet: bool,
+    /// `--chaos SECONDS`: SIGKILL a random stage at this mean interval.
+    pub chaos_s: Option<f64>,
+    /// Seed of the chaos schedule (default `run.seed`).
+    pub chaos_seed: Option<u64>,
+    /// Stages chaos may kill (empty: every stage the launcher started).
+    pub chaos_stages: Vec<StageKind>,
+    /// `--timeline FILE`: one JSON line per period (RSS, shm, latency).
+    pub timeline: Option<PathBuf>,
+    /// Period of the timeline samples (s; 0: no timeline).
+    pub timeline_period_s: f64,
 }
 
 /// Why the launcher failed (the binary maps it to an exit status).
@@ -72,6 +96,9 @@ pub enum LaunchError {
     Runtime(#[from] anyhow::Error),
 }
 
+/// Exit status prefix of a stage that died as the run ended, before its
+/// restart.
+const RESTART_PENDING: &str = "restart pending";
 /// Grace period for a stage to stop after SIGTERM.
 const STOP_GRACE: Duration = Duration::from_secs(5);
 /// Time for all stages but the plant to come up.
@@ -93,6 +120,43 @@ struct Stage {
     child: Option<Child>,
     pid: u32,
     exit: Option<ExitStatus>,
+    /// When this incarnation was spawned.
+    started: Instant,
+    restart: RestartState,
+    /// A restart is due at this time (no process meanwhile).
+    restart_at: Option<Instant>,
+    /// The supervisor killed this incarnation for a missed heartbeat.
+    hung: bool,
+    /// When chaos killed this incarnation (CLOCK_MONOTONIC ns).
+    chaos_kill_ns: Option<u64>,
+    heartbeat_misses: u64,
+    chaos_kills: u64,
+    /// Counters of earlier incarnations (processed, dropped, rejected,
+    /// deadline misses, late, controls received, processed after warm-up).
+    earlier: [u64; 7],
+    /// Causes of the deaths of earlier incarnations.
+    deaths: Vec<String>,
+}
+
+/// One death and the recovery that followed it.
+#[derive(Debug)]
+struct Recovery {
+    kind: StageKind,
+    cause: String,
+    t_death_ns: u64,
+    pid: Option<u32>,
+    backoff_ms: f64,
+    reported_ns: Option<u64>,
+    output_ns: Option<u64>,
+}
+
+impl Recovery {
+    /// Death → recovered (new process reported and an output derived from
+    /// post-death data was published), in ms.
+    fn ms(&self) -> Option<f64> {
+        let done = self.reported_ns?.max(self.output_ns?);
+        Some(done.saturating_sub(self.t_death_ns) as f64 / 1e6)
+    }
 }
 
 fn describe(s: &ExitStatus) -> String {
@@ -130,6 +194,32 @@ fn spawn(
     prefix: &str,
     notes: &mut Vec<String>,
 ) -> Result<Stage> {
+    let child = spawn_child(kind, opts, prefix, notes, None)?;
+    eprintln!("supervisor: started {} (pid {})", kind.name(), child.id());
+    Ok(Stage {
+        kind,
+        pid: child.id(),
+        child: Some(child),
+        exit: None,
+        started: Instant::now(),
+        restart: RestartState::default(),
+        restart_at: None,
+        hung: false,
+        chaos_kill_ns: None,
+        heartbeat_misses: 0,
+        chaos_kills: 0,
+        earlier: [0; 7],
+        deaths: Vec::new(),
+    })
+}
+
+fn spawn_child(
+    kind: StageKind,
+    opts: &RunOptions,
+    prefix: &str,
+    notes: &mut Vec<String>,
+    resume: Option<&Path>,
+) -> Result<Child> {
     let (mut cmd, own) = stage_command(kind)?;
     if !own {
         let n = "stage executables next to beliefbus are missing or from another build \
@@ -142,6 +232,9 @@ fn spawn(
     for s in &opts.sets {
         cmd.arg("--set").arg(s);
     }
+    if let Some(r) = resume {
+        cmd.arg("--resume").arg(r);
+    }
     // Own process group: a terminal's Ctrl-C reaches only the launcher, which
     // stops the stages in order. Parent-death signal: if the launcher dies,
     // the stages stop too (and release their shared memory).
@@ -153,15 +246,8 @@ fn spawn(
             Ok(())
         });
     }
-    let child = cmd
-        .spawn()
-        .with_context(|| format!("cannot start the {} stage", kind.name()))?;
-    Ok(Stage {
-        kind,
-        pid: child.id(),
-        child: Some(child),
-        exit: None,
-    })
+    cmd.spawn()
+        .with_context(|| format!("cannot start the {} stage", kind.name()))
 }
 
 fn signal(pid: u32, sig: libc::c_int) {
@@ -240,7 +326,7 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
     // Whatever happened, leave nothing behind.
     let cleaned = cleanup::remove_prefix(&prefix);
     let left = cleanup::resources(&prefix);
-    let (mut input, notes, failure) = result?;
+    let (mut input, notes, failure, extra) = result?;
     input.files_removed = cleaned.map(|r| r.files_removed).unwrap_or(0);
     input.files_left = left.len();
     for n in notes {
@@ -253,7 +339,9 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
             left.len()
         );
     }
-    let json = input.to_json();
+    let mut json = input.to_json();
+    merge_supervision(&mut json, extra);
+    print_supervision(&json);
     if let Some(path) = &opts.report {
         let text = serde_json::to_string_pretty(&json).context("serialising the report")?;
         std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
@@ -263,7 +351,13 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
         .stages
         .iter()
         .filter(|(k, _)| !(opts.sensor == SensorSource::External && *k == StageKind::Plant))
-        .filter(|(_, e)| e.exit.as_deref() != Some("exit 0"))
+        .filter(|(_, e)| {
+            e.exit.as_deref() != Some("exit 0")
+                && !e
+                    .exit
+                    .as_deref()
+                    .is_some_and(|x| x.starts_with(RESTART_PENDING))
+        })
         .map(|(k, e)| {
             format!(
                 "{} ({})",
@@ -281,12 +375,21 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
     Ok(json)
 }
 
+/// What the supervision loop accumulates for the report.
+#[derive(Debug, Default)]
+struct Supervision {
+    recoveries: Vec<Recovery>,
+    dead_nodes_removed: usize,
+    chaos_kills: u64,
+    timeline: Timeline,
+}
+
 fn supervise(
     cfg: &PipelineConfig,
     opts: &RunOptions,
     prefix: &str,
     stop: &AtomicBool,
-) -> Result<(ReportInput, Vec<String>, Option<anyhow::Error>)> {
+) -> Result<(ReportInput, Vec<String>, Option<anyhow::Error>, Value)> {
     let bus = Bus::open(
         &BusConfig {
             prefix: prefix.to_string(),
@@ -296,11 +399,31 @@ fn supervise(
     )?;
     let model = cfg.model()?;
     let mut mon = Monitor::open(&bus, model, (cfg.run.warmup_s * 1e9) as u64)?;
+    if cfg.control.backend == ControlBackend::None {
+        mon = mon.beliefs_are_output();
+    }
     let mut notes = Vec::new();
     let mut stages: Vec<Stage> = Vec::new();
-    let outcome = drive(cfg, opts, prefix, stop, &mut mon, &mut stages, &mut notes);
+    let state_dir = std::env::temp_dir().join(format!("{prefix}state"));
+    std::fs::create_dir_all(&state_dir)
+        .with_context(|| format!("cannot create {}", state_dir.display()))?;
+    let mut sup = Supervision {
+        timeline: Timeline::create(opts.timeline.as_deref())
+            .with_context(|| "cannot create the timeline file".to_string())?,
+        ..Supervision::default()
+    };
+    let mut ctx = Ctx {
+        cfg,
+        opts,
+        prefix,
+        state_dir: &state_dir,
+        notes: &mut notes,
+        sup: &mut sup,
+    };
+    let outcome = drive(&mut ctx, stop, &mut mon, &mut stages);
     shutdown(&mut stages, &mut mon);
     let _ = mon.poll();
+    let _ = std::fs::remove_dir_all(&state_dir);
     let input = ReportInput {
         scenario: cfg.run.scenario.name().into(),
         duration_s: cfg.run.duration_s,
@@ -317,13 +440,32 @@ fn supervise(
             .iter()
             .map(|&k| {
                 let s = stages.iter().find(|s| s.kind == k);
+                let mut stats = mon.stats(k).copied();
+                // Counters span every incarnation; histograms are the last one's.
+                if let (Some(st), Some(s)) = (stats.as_mut(), s) {
+                    st.processed += s.earlier[0];
+                    st.dropped += s.earlier[1];
+                    st.rejected += s.earlier[2];
+                    st.deadline_misses += s.earlier[3];
+                    st.late += s.earlier[4];
+                    st.controls_received += s.earlier[5];
+                    st.processed_after_warmup += s.earlier[6];
+                }
                 (
                     k,
                     StageEnd {
                         // An external plant (`beliefbus plant`) reports its pid.
                         pid: s.map(|s| s.pid).or(mon.stats(k).map(|st| st.pid)),
-                        stats: mon.stats(k).copied(),
-                        exit: s.and_then(|s| s.exit.as_ref()).map(describe),
+                        stats,
+                        exit: s.and_then(|s| {
+                            let e = s.exit.as_ref().map(describe)?;
+                            // Died (and was to be restarted) as the run ended.
+                            Some(if s.restart_at.is_some() || s.chaos_kill_ns.is_some() {
+                                format!("{RESTART_PENDING} ({e})")
+                            } else {
+                                e
+                            })
+                        }),
                     },
                 )
             })
@@ -332,23 +474,206 @@ fn supervise(
         files_removed: 0,
         files_left: 0,
     };
+    let extra = supervision_json(&stages, &sup);
     drop(mon);
     drop(bus);
-    Ok((input, notes, outcome.err()))
+    Ok((input, notes, outcome.err(), extra))
+}
+
+/// The report's supervision figures: `stages.<name>.{restarts,
+/// heartbeat_misses, chaos_kills, deaths}` and the `supervisor` section.
+fn supervision_json(stages: &[Stage], sup: &Supervision) -> Value {
+    let mut per_stage = serde_json::Map::new();
+    for s in stages {
+        per_stage.insert(
+            s.kind.name().into(),
+            json!({
+                "restarts": s.restart.restarts,
+                "heartbeat_misses": s.heartbeat_misses,
+                "chaos_kills": s.chaos_kills,
+                "deaths": s.deaths,
+            }),
+        );
+    }
+    let stats = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        json!({
+            "count": v.len(),
+            // Lower median (nearest rank).
+            "p50": v.get(v.len().saturating_sub(1) / 2),
+            "max": v.last(),
+        })
+    };
+    let mut all: Vec<f64> = sup.recoveries.iter().filter_map(Recovery::ms).collect();
+    let mut by_stage = serde_json::Map::new();
+    for k in StageKind::ALL {
+        let mut v: Vec<f64> = sup
+            .recoveries
+            .iter()
+            .filter(|r| r.kind == k)
+            .filter_map(Recovery::ms)
+            .collect();
+        if !v.is_empty() {
+            by_stage.insert(k.name().into(), stats(&mut v));
+        }
+    }
+    json!({
+        "stages": per_stage,
+        "supervisor": {
+            "restarts": stages.iter().map(|s| s.restart.restarts as u64).sum::<u64>(),
+            "heartbeat_misses": stages.iter().map(|s| s.heartbeat_misses).sum::<u64>(),
+            "chaos_kills": sup.chaos_kills,
+            "dead_nodes_removed": sup.dead_nodes_removed,
+            "recoveries_pending": sup.recoveries.iter().filter(|r| r.ms().is_none()).count(),
+            "recovery_ms": stats(&mut all),
+            "recovery_ms_by_stage": by_stage,
+            "recoveries": sup.recoveries.iter().map(|r| json!({
+                "stage": r.kind.name(),
+                "cause": r.cause,
+                "backoff_ms": r.backoff_ms,
+                "new_pid": r.pid,
+                "recovery_ms": r.ms(),
+            })).collect::<Vec<_>>(),
+        },
+        "timeline": sup.timeline.summary(),
+    })
+}
+
+/// Everything the supervision loop needs besides the stages and monitor.
+struct Ctx<'a> {
+    cfg: &'a PipelineConfig,
+    opts: &'a RunOptions,
+    prefix: &'a str,
+    state_dir: &'a Path,
+    notes: &'a mut Vec<String>,
+    sup: &'a mut Supervision,
+}
+
+fn exit_death(s: &ExitStatus) -> Death {
+    match (s.code(), s.signal()) {
+        (Some(c), _) => Death::Exit(c),
+        (_, Some(sig)) => Death::Signal(sig),
+        _ => Death::Exit(-1),
+    }
+}
+
+/// A stage incarnation is gone (reaped): account for it and decide.
+fn on_death(ctx: &mut Ctx, mon: &mut Monitor, s: &mut Stage) -> Result<()> {
+    let death = if s.hung {
+        Death::Hang
+    } else {
+        s.exit.as_ref().map(exit_death).unwrap_or(Death::Exit(-1))
+    };
+    let chaos = s.chaos_kill_ns.take();
+    let t_death_ns = chaos.unwrap_or_else(now_ns);
+    let cause = if chaos.is_some() && death == Death::Signal(libc::SIGKILL) {
+        "chaos".to_string()
+    } else {
+        death.describe()
+    };
+    s.hung = false;
+    if let Some(st) = mon.stats(s.kind).filter(|st| st.pid == s.pid) {
+        s.earlier[0] += st.processed;
+        s.earlier[1] += st.dropped;
+        s.earlier[2] += st.rejected;
+        s.earlier[3] += st.deadline_misses;
+        s.earlier[4] += st.late;
+        s.earlier[5] += st.controls_received;
+        s.earlier[6] += st.processed_after_warmup;
+    }
+    mon.forget(s.kind);
+    // iceoryx2 dead-node cleanup: the dead process's node, its ports and
+    // data segments (the reaped process no longer holds its lock).
+    if let Ok((_, removed, _)) = cleanup::remove_dead_nodes(ctx.prefix) {
+        ctx.sup.dead_nodes_removed += removed;
+    }
+    s.deaths.push(cause.clone());
+    let policy = &ctx.cfg.stages.get(s.kind).restart;
+    match s.restart.decide(policy, death, s.started.elapsed()) {
+        Decision::Restart { after, consecutive } => {
+            eprintln!(
+                "supervisor: {} (pid {}) died ({cause}); restart #{} in {:.0} ms{}",
+                s.kind.name(),
+                s.pid,
+                s.restart.restarts,
+                after.as_secs_f64() * 1e3,
+                if consecutive > 1 {
+                    format!(" ({consecutive} in a row)")
+                } else {
+                    String::new()
+                }
+            );
+            s.restart_at = Some(Instant::now() + after);
+            ctx.sup.recoveries.push(Recovery {
+                kind: s.kind,
+                cause,
+                t_death_ns,
+                pid: None,
+                backoff_ms: after.as_secs_f64() * 1e3,
+                reported_ns: None,
+                output_ns: None,
+            });
+            Ok(())
+        }
+        Decision::GiveUp(why) => {
+            let why = match why {
+                GiveUpReason::PolicyNever => "its restart policy is \"never\"",
+                GiveUpReason::CleanExit => "it exited cleanly (restart.on = \"failure\")",
+                GiveUpReason::TooManyRestarts => "restart.max_restarts is used up",
+            };
+            bail!(
+                "the {} stage exited unexpectedly ({cause}); not restarted: {why}",
+                s.kind.name()
+            )
+        }
+    }
+}
+
+/// Start the next incarnation of `s` with what it resumes from.
+fn respawn(ctx: &mut Ctx, mon: &Monitor, s: &mut Stage) -> Result<()> {
+    let resume = Resume {
+        restarts: s.restart.restarts,
+        state_dir: Some(ctx.state_dir.to_path_buf()),
+        belief: mon.last_belief().map(ResumeBelief::from_msg),
+        control: mon.last_control().map(ResumeControl::from_msg),
+        truth: mon.last_truth().map(ResumeTruth::from_msg),
+    };
+    let path = ctx.state_dir.join(format!("{}.resume.json", s.kind.name()));
+    resume.save(&path)?;
+    let child = spawn_child(s.kind, ctx.opts, ctx.prefix, ctx.notes, Some(&path))?;
+    s.pid = child.id();
+    s.child = Some(child);
+    s.exit = None;
+    s.started = Instant::now();
+    s.restart_at = None;
+    eprintln!(
+        "supervisor: restarted {} (pid {}, restart #{})",
+        s.kind.name(),
+        s.pid,
+        s.restart.restarts
+    );
+    if let Some(r) = ctx
+        .sup
+        .recoveries
+        .iter_mut()
+        .rev()
+        .find(|r| r.kind == s.kind && r.pid.is_none())
+    {
+        r.pid = Some(s.pid);
+    }
+    Ok(())
 }
 
 fn drive(
-    cfg: &PipelineConfig,
-    opts: &RunOptions,
-    prefix: &str,
+    ctx: &mut Ctx,
     stop: &AtomicBool,
     mon: &mut Monitor,
     stages: &mut Vec<Stage>,
-    notes: &mut Vec<String>,
 ) -> Result<()> {
+    let (cfg, opts, prefix) = (ctx.cfg, ctx.opts, ctx.prefix);
     // Start everything but the plant, wait for their first reports.
     for &kind in &START_ORDER[..4] {
-        stages.push(spawn(kind, opts, prefix, notes)?);
+        stages.push(spawn(kind, opts, prefix, ctx.notes)?);
     }
     let deadline = Instant::now() + START_TIMEOUT;
     loop {
@@ -379,7 +704,7 @@ fn drive(
     // lost.
     std::thread::sleep(3 * ipc::STOP_POLL);
     if opts.sensor == SensorSource::Plant {
-        stages.push(spawn(StageKind::Plant, opts, prefix, notes)?);
+        stages.push(spawn(StageKind::Plant, opts, prefix, ctx.notes)?);
     } else {
         eprintln!(
             "pipeline up; waiting for sensor samples on {} (prefix {prefix})",
@@ -389,6 +714,13 @@ fn drive(
     let t0 = Instant::now();
     let duration = (cfg.run.duration_s > 0.0).then(|| Duration::from_secs_f64(cfg.run.duration_s));
     let mut next_status = t0 + Duration::from_secs(1);
+    let mut chaos = opts.chaos_s.map(|m| {
+        let mut c = Chaos::new(m, opts.chaos_seed.unwrap_or(cfg.run.seed));
+        let first = t0 + c.next_gap();
+        (c, first)
+    });
+    let period = Duration::from_secs_f64(opts.timeline_period_s.max(0.0));
+    let mut next_sample = (opts.timeline_period_s > 0.0).then(|| t0 + period);
     loop {
         std::thread::sleep(POLL);
         mon.poll()?;
@@ -399,13 +731,114 @@ fn drive(
         if duration.is_some_and(|d| t0.elapsed() >= d) {
             return Ok(());
         }
+        // Reap the dead (waitpid) and decide about them.
         for s in stages.iter_mut() {
-            if s.poll_exit() {
-                bail!(
-                    "the {} stage exited unexpectedly ({})",
+            if s.restart_at.is_none() && s.poll_exit() {
+                on_death(ctx, mon, s)?;
+            }
+        }
+        // Heartbeats: a stage whose last report is overdue hangs.
+        let now = Instant::now();
+        for s in stages.iter_mut().filter(|s| s.child.is_some()) {
+            let (since, limit) = match mon.last_seen(s.kind, s.pid) {
+                Some(t) => (
+                    t,
+                    cfg.stages
+                        .get(s.kind)
+                        .restart
+                        .heartbeat_timeout(cfg.run.stats_period_s),
+                ),
+                None => (s.started, START_TIMEOUT),
+            };
+            if now.duration_since(since) > limit {
+                s.heartbeat_misses += 1;
+                eprintln!(
+                    "supervisor: {} (pid {}) missed its heartbeat deadline ({:.0} ms without a report); killing it",
                     s.kind.name(),
-                    s.exit.as_ref().map(describe).unwrap_or_default()
+                    s.pid,
+                    limit.as_secs_f64() * 1e3
                 );
+                s.hung = true;
+                signal(s.pid, libc::SIGKILL);
+                if let Some(mut c) = s.child.take() {
+                    s.exit = c.wait().ok();
+                }
+                on_death(ctx, mon, s)?;
+            }
+        }
+        // Restarts that are due.
+        for s in stages.iter_mut() {
+            if s.restart_at.is_some_and(|t| Instant::now() >= t) {
+                respawn(ctx, mon, s)?;
+            }
+        }
+        // Recoveries: the new process reported, and an output derived from
+        // data published after the death went out.
+        let now_n = now_ns();
+        for r in ctx.sup.recoveries.iter_mut().filter(|r| r.ms().is_none()) {
+            let Some(pid) = r.pid else { continue };
+            if r.reported_ns.is_none() && mon.last_seen(r.kind, pid).is_some() {
+                r.reported_ns = Some(now_n);
+            }
+            if r.output_ns.is_none() {
+                r.output_ns = mon
+                    .outputs()
+                    .iter()
+                    .filter(|o| o.t_sensor_pub_ns > r.t_death_ns)
+                    .map(|o| o.t_pub_ns)
+                    .min();
+            }
+            if let Some(ms) = r.ms() {
+                eprintln!(
+                    "supervisor: recovered {} ({}) in {ms:.1} ms",
+                    r.kind.name(),
+                    r.cause
+                );
+            }
+        }
+        // Chaos: SIGKILL a random running stage.
+        if let Some((c, at)) = chaos.as_mut() {
+            if Instant::now() >= *at {
+                *at += c.next_gap();
+                let candidates: Vec<usize> = stages
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, s)| {
+                        s.child.is_some()
+                            && (opts.chaos_stages.is_empty() || opts.chaos_stages.contains(&s.kind))
+                    })
+                    .map(|(i, _)| i)
+                    .collect();
+                if let Some(i) = c.pick(candidates.len()) {
+                    let s = &mut stages[candidates[i]];
+                    eprintln!("supervisor: chaos kills {} (pid {})", s.kind.name(), s.pid);
+                    s.chaos_kill_ns = Some(now_ns());
+                    s.chaos_kills += 1;
+                    ctx.sup.chaos_kills += 1;
+                    signal(s.pid, libc::SIGKILL);
+                }
+            }
+        }
+        if let Some(at) = next_sample.as_mut() {
+            if Instant::now() >= *at {
+                *at += period;
+                let running: Vec<(StageKind, u32)> = stages
+                    .iter()
+                    .filter(|s| s.child.is_some())
+                    .map(|s| (s.kind, s.pid))
+                    .collect();
+                let restarts = stages.iter().map(|s| s.restart.restarts as u64).sum();
+                let sample = Sample::new(
+                    t0.elapsed().as_secs_f64(),
+                    &running,
+                    cleanup::shm_files(prefix).len(),
+                    restarts,
+                    &mon.take_window(),
+                );
+                if !opts.quiet {
+                    eprintln!("timeline: {}", sample.to_json());
+                }
+                ctx.sup.timeline.push(sample);
             }
         }
         if !opts.quiet && Instant::now() >= next_status {
@@ -463,6 +896,47 @@ fn status_line(elapsed: Duration, mon: &Monitor, cfg: &PipelineConfig) -> String
         line.push_str(&format!(" | rejected {rejected}"));
     }
     line
+}
+
+/// Add the supervision figures to the report JSON.
+fn merge_supervision(json: &mut Value, extra: Value) {
+    if let Some(per) = extra["stages"].as_object() {
+        for (name, v) in per {
+            if let (Some(dst), Some(src)) = (json["stages"][name].as_object_mut(), v.as_object()) {
+                for (k, x) in src {
+                    dst.insert(k.clone(), x.clone());
+                }
+            }
+        }
+    }
+    // Stages the launcher did not start (an external plant): no restarts.
+    if let Some(st) = json["stages"].as_object_mut() {
+        for v in st.values_mut() {
+            if let Some(o) = v.as_object_mut() {
+                o.entry("restarts").or_insert(json!(0));
+                o.entry("heartbeat_misses").or_insert(json!(0));
+            }
+        }
+    }
+    json["supervisor"] = extra["supervisor"].clone();
+    json["timeline"] = extra["timeline"].clone();
+}
+
+/// One line of supervision figures when anything happened.
+fn print_supervision(json: &Value) {
+    let s = &json["supervisor"];
+    let restarts = s["restarts"].as_u64().unwrap_or(0);
+    if restarts > 0 || s["heartbeat_misses"].as_u64().unwrap_or(0) > 0 {
+        let f = |v: &Value| v.as_f64().map(|x| format!("{x:.1}")).unwrap_or("-".into());
+        println!(
+            "supervisor: {restarts} restarts, {} heartbeat misses, {} chaos kills; recovery p50 {} ms, max {} ms over {}",
+            s["heartbeat_misses"],
+            s["chaos_kills"],
+            f(&s["recovery_ms"]["p50"]),
+            f(&s["recovery_ms"]["max"]),
+            s["recovery_ms"]["count"]
+        );
+    }
 }
 
 /// Stop the plant, then the rest; reap everything; SIGKILL stragglers.

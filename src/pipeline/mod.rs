@@ -10,6 +10,9 @@ pub mod monitor;
 pub mod report;
 pub mod scenario;
 pub mod stage_main;
+pub mod supervisor;
+pub mod supervisor_resume;
+pub mod supervisor_timeline;
 
 pub use config::{ConfigError, PipelineConfig};
 pub use scenario::{AnyModel, Scenario};

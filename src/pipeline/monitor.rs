@@ -15,8 +15,10 @@
 //! ```
 
 use super::scenario::AnyModel;
-use crate::ipc::{Belief, Bus, IpcError, StageKind, StageStats, Subscriber, Truth};
+use crate::ipc::{Belief, Bus, Control, IpcError, StageKind, StageStats, Subscriber, Truth};
+use crate::rt::LatencyHist;
 use crate::MAX_STATE;
+use std::time::Instant;
 
 /// Truths kept for matching (≥ 4 s at 1 kHz).
 const TRUTH_RING: usize = 4096;
@@ -141,13 +143,35 @@ impl AccuracyTracker {
     }
 }
 
+/// An end-to-end output of the pipeline seen by the monitor: a control
+/// (or, in estimation-only runs, a belief).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Output {
+    /// Publish time of the sensor sample it derives from.
+    pub t_sensor_pub_ns: u64,
+    /// Its own publish time.
+    pub t_pub_ns: u64,
+}
+
 /// The launcher's subscriptions.
 pub struct Monitor {
     stats: Subscriber<StageStats>,
     belief: Subscriber<Belief>,
     truth: Subscriber<Truth>,
+    control: Subscriber<Control>,
     latest: [Option<StageStats>; 5],
+    /// (pid, when) of each stage's latest report: the heartbeat.
+    seen: [Option<(u32, Instant)>; 5],
     accuracy: AccuracyTracker,
+    last_belief: Option<Belief>,
+    last_control: Option<Control>,
+    last_truth: Option<Truth>,
+    /// Controls are the outputs (false: beliefs, estimation only).
+    controls_are_output: bool,
+    /// Outputs received by the last poll.
+    outputs: Vec<Output>,
+    /// Sensor → output latency since the last [`Monitor::take_window`].
+    window: LatencyHist,
 }
 
 fn slot(kind: StageKind) -> usize {
@@ -161,26 +185,105 @@ impl Monitor {
             stats: bus.subscriber_with(64, false)?,
             belief: bus.subscriber_with(256, false)?,
             truth: bus.subscriber_with(512, false)?,
+            control: bus.subscriber_with(256, false)?,
             latest: [None; 5],
+            seen: [None; 5],
             accuracy: AccuracyTracker::new(model, warmup_ns),
+            last_belief: None,
+            last_control: None,
+            last_truth: None,
+            controls_are_output: true,
+            outputs: Vec::with_capacity(512),
+            window: LatencyHist::new(),
         })
+    }
+
+    /// Take beliefs instead of controls as the pipeline's output
+    /// (estimation-only runs).
+    pub fn beliefs_are_output(mut self) -> Self {
+        self.controls_are_output = false;
+        self
+    }
+
+    fn output(&mut self, t_sensor_pub_ns: u64, t_pub_ns: u64) {
+        if t_sensor_pub_ns != 0 && t_pub_ns >= t_sensor_pub_ns {
+            self.window.record(t_pub_ns - t_sensor_pub_ns);
+        }
+        if self.outputs.len() < self.outputs.capacity() {
+            self.outputs.push(Output {
+                t_sensor_pub_ns,
+                t_pub_ns,
+            });
+        }
     }
 
     /// Drain everything that arrived.
     pub fn poll(&mut self) -> Result<(), IpcError> {
+        self.outputs.clear();
+        let now = Instant::now();
         while let Some(s) = self.stats.receive()? {
             if let Some(k) = StageKind::from_id(s.stage) {
                 self.latest[slot(k)] = Some(s);
+                self.seen[slot(k)] = Some((s.pid, now));
             }
         }
         while let Some(t) = self.truth.receive()? {
             self.accuracy.add_truth(&t);
+            self.last_truth = Some(t);
         }
         self.accuracy.retry_pending();
         while let Some(b) = self.belief.receive()? {
             self.accuracy.add_belief(&b);
+            if !self.controls_are_output {
+                self.output(b.trace.t_sensor_pub_ns, b.header.t_pub_ns);
+            }
+            self.last_belief = Some(b);
+        }
+        while let Some(c) = self.control.receive()? {
+            if self.controls_are_output {
+                self.output(c.trace.t_sensor_pub_ns, c.header.t_pub_ns);
+            }
+            self.last_control = Some(c);
         }
         Ok(())
+    }
+
+    /// When the stage last reported from process `pid` (None: not since
+    /// that process started).
+    pub fn last_seen(&self, kind: StageKind, pid: u32) -> Option<Instant> {
+        self.seen[slot(kind)]
+            .filter(|(p, _)| *p == pid)
+            .map(|(_, t)| t)
+    }
+
+    /// Forget a stage's latest report (its process was replaced).
+    pub fn forget(&mut self, kind: StageKind) {
+        self.latest[slot(kind)] = None;
+        self.seen[slot(kind)] = None;
+    }
+
+    /// The outputs (controls, or beliefs) received by the last poll.
+    pub fn outputs(&self) -> &[Output] {
+        &self.outputs
+    }
+
+    /// Sensor → output latency percentiles since the previous call (and
+    /// reset).
+    pub fn take_window(&mut self) -> crate::ipc::Percentiles {
+        let p = self.window.percentiles();
+        self.window.reset();
+        p
+    }
+
+    /// The last belief, control and truth seen.
+    pub fn last_belief(&self) -> Option<&Belief> {
+        self.last_belief.as_ref()
+    }
+    pub fn last_control(&self) -> Option<&Control> {
+        self.last_control.as_ref()
+    }
+    pub fn last_truth(&self) -> Option<&Truth> {
+        self.last_truth.as_ref()
     }
 
     /// The latest report of a stage.

@@ -14,6 +14,8 @@
 //!   accuracy: {rmse_position, rmse_state, rmse_position_raw, beliefs, samples},
 //!   control:  {waypoints_reached, mean_distance_to_waypoint, controls_received,
 //!              controller, cost, compute_p50_us, compute_p99_us},
+//!   chain:    {versions, states, delta_s, swap_p50_us, swap_p99_us, mass_lost_max,
+//!              published, refine_states}   (filter backend `chain`; issue 4)
 //!   shared_memory: {files_removed, files_left} }
 //! ```
 //! Hops count only samples measured after `run.warmup_s`; a figure with no
@@ -219,10 +221,35 @@ impl ReportInput {
                 "compute_p99_us":
                     opt(ctl.filter(|c| c.compute.count > 0).map(|c| us(c.compute.p99_ns))),
             },
+            "chain": self.chain_json(),
             "shared_memory": {
                 "files_removed": self.files_removed,
                 "files_left": self.files_left,
             },
+        })
+    }
+
+    /// The `chain` section: what the filter installed (versions, size and δ
+    /// of the active chain, swap durations, largest mass lost in a remap)
+    /// and what refine published.
+    fn chain_json(&self) -> Value {
+        let f = self.stats(StageKind::Filter);
+        let r = self.stats(StageKind::Refine);
+        let swaps = f.map(|s| s.chain_versions).unwrap_or(0);
+        let us_or_null = |v: Option<u64>| {
+            v.filter(|_| swaps > 0)
+                .map(|ns| json!(us(ns)))
+                .unwrap_or(Value::Null)
+        };
+        json!({
+            "versions": swaps,
+            "states": f.map(|s| s.chain_states).unwrap_or(0),
+            "delta_s": opt(f.filter(|_| swaps > 0).map(|s| s.chain_delta_s)),
+            "swap_p50_us": us_or_null(f.map(|s| s.chain_swap_p50_ns)),
+            "swap_p99_us": us_or_null(f.map(|s| s.chain_swap_p99_ns)),
+            "mass_lost_max": opt(f.filter(|_| swaps > 0).map(|s| s.chain_mass_lost_max)),
+            "published": r.map(|s| s.chain_versions).unwrap_or(0),
+            "refine_states": r.map(|s| s.chain_states).unwrap_or(0),
         })
     }
 
@@ -299,6 +326,21 @@ impl ReportInput {
             f(a.rmse_state),
             a.beliefs
         ));
+        if let Some(c) = self
+            .stats(StageKind::Filter)
+            .filter(|c| c.chain_versions > 0)
+        {
+            out.push_str(&format!(
+                "chain: {} versions installed ({} published), {} states, δ {:.2e} s, swap p50 {:.1} µs p99 {:.1} µs, mass lost in a remap ≤ {:.2e}\n",
+                c.chain_versions,
+                self.stats(StageKind::Refine).map(|r| r.chain_versions).unwrap_or(0),
+                c.chain_states,
+                c.chain_delta_s,
+                us(c.chain_swap_p50_ns),
+                us(c.chain_swap_p99_ns),
+                c.chain_mass_lost_max
+            ));
+        }
         if let Some(p) = self.stats(StageKind::Plant) {
             if p.controls_received > 0 {
                 out.push_str(&format!(
@@ -435,6 +477,16 @@ mod tests {
         }
         for k in ["waypoints_reached", "mean_distance_to_waypoint"] {
             assert!(v["control"].get(k).is_some());
+        }
+        for k in [
+            "versions",
+            "states",
+            "delta_s",
+            "swap_p50_us",
+            "swap_p99_us",
+            "mass_lost_max",
+        ] {
+            assert!(v["chain"].get(k).is_some(), "chain.{k}");
         }
         assert!(v["stages"]["ingest"]["rejected_by_reason"]
             .get("non_finite")

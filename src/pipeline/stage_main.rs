@@ -4,8 +4,10 @@
 //! join the pipeline and run the stage loop.
 //!
 //! ```text
-//! beliefbus-<stage> [CONFIG] [--set KEY=VALUE ...] [--prefix PREFIX]
+//! beliefbus-<stage> [CONFIG] [--set KEY=VALUE ...] [--prefix PREFIX] [--resume FILE]
 //! ```
+//! `--resume FILE` (given by the supervisor when it restarts a stage):
+//! the state to resume from ([`crate::pipeline::supervisor_resume`]).
 //! Started by hand (without `--prefix`), the last stage to stop removes the
 //! prefix's remaining shared memory; under the launcher, the launcher does.
 //!
@@ -14,8 +16,9 @@
 
 use crate::ipc::{self, StageKind};
 use crate::pipeline::config;
+use crate::pipeline::supervisor_resume::Resume;
 use crate::rt::MonotonicClock;
-use crate::stage::{run_stage, StageIdentity};
+use crate::stage::{run_stage_with, StageIdentity};
 use clap::Parser;
 use std::path::PathBuf;
 
@@ -37,6 +40,9 @@ struct Args {
     /// per-run prefix).
     #[arg(long)]
     prefix: Option<String>,
+    /// Resume from this state file (written by the supervisor on a restart).
+    #[arg(long)]
+    resume: Option<PathBuf>,
     /// Print the build fingerprint and exit (the launcher checks it).
     #[arg(long, hide = true)]
     build_id: bool,
@@ -83,13 +89,23 @@ where
             return 2;
         }
     };
+    let resume = match &args.resume {
+        Some(p) => match Resume::load(p) {
+            Ok(r) => r,
+            Err(e) => {
+                eprintln!("{name}: {e}");
+                return 2;
+            }
+        },
+        None => Resume::default(),
+    };
     let stop = ipc::install_stop_handler();
     let rt = crate::rt::apply_rt(&name, &cfg.stages.get(kind).rt());
     for w in &rt.warnings {
         eprintln!("warning: {w}");
     }
     let id = StageIdentity::this_process(kind, &rt);
-    let code = match run_stage(&cfg.bus(), &cfg, id, &MonotonicClock, stop) {
+    let code = match run_stage_with(&cfg.bus(), &cfg, id, &MonotonicClock, stop, &resume) {
         Ok(_) => 0,
         Err(e) => {
             eprintln!("{name}: {e}");

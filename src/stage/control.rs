@@ -30,6 +30,7 @@ use crate::ipc::{
 };
 use crate::model::SdeModel;
 use crate::pipeline::config::{ControlBackend, CostConfig};
+use crate::pipeline::supervisor_resume::ResumeControl;
 use crate::pipeline::{AnyModel, PipelineConfig};
 use crate::rt::Clock;
 use crate::{MAX_CONTROL, MAX_STATE};
@@ -184,10 +185,24 @@ pub fn make_backend(cfg: &PipelineConfig) -> Result<Option<Backend>, StageError>
 
 /// Run the control stage until `stop`; returns its final stats.
 pub fn run(
+    ports: ControlPorts,
+    cfg: &PipelineConfig,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+) -> Result<StageStats, StageError> {
+    run_with(ports, cfg, clock, stop, None)
+}
+
+/// [`run`] resuming after a restart from the last published control: the
+/// route continues at that control's waypoint with its count of reached
+/// waypoints, and the control numbering continues. (The last belief itself
+/// arrives from the belief channel's history on connection.)
+pub fn run_with(
     mut ports: ControlPorts,
     cfg: &PipelineConfig,
     clock: &dyn Clock,
     stop: &AtomicBool,
+    resume: Option<&ResumeControl>,
 ) -> Result<StageStats, StageError> {
     let rt = cfg.stages.get(StageKind::Control);
     let mut m = Metrics::new(
@@ -203,6 +218,9 @@ pub fn run(
         (Some(_), Some(r)) => Some(WaypointTracker::new(r.clone())),
         _ => None,
     };
+    if let (Some(r), Some(c)) = (route.as_mut(), resume) {
+        r.resume_at(c.goal, c.waypoints_reached);
+    }
     let mut goal_set = false;
     let mut seq = SeqTracker::default();
     let mut epoch: Option<u64> = None;
@@ -212,7 +230,7 @@ pub fn run(
         dim: dims.control as u32,
         ..Control::default()
     };
-    let mut out_seq = 0u64;
+    let mut out_seq = resume.map(|c| c.seq + 1).unwrap_or(0);
     let mut err = None;
     let max_age_ns = (cfg.control.max_belief_age_us * 1e3) as u64;
     // Closed-loop cost: the running cost at the belief mean with the control

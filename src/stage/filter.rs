@@ -8,22 +8,32 @@
 //! (which it takes as the time of the prior). A step the filter refuses is
 //! counted by reason: a refused prediction publishes nothing, a refused
 //! update publishes the prediction flagged `UPDATE_REFUSED`.
+//!
+//! The `chain` backend (issue 4) runs [`LiveChainFilter`] on the snapshots
+//! of the refine stage's `chain` slice channel: after each belief is
+//! published (off the sensor→belief path), a received version is prepared
+//! for at most `filter.chain.prepare_budget_us` and swapped in when ready;
+//! the swap durations, versions, size, δ and the largest mass lost in a
+//! remap go into the stage's `chain_*` stats. An EKF answers until the first
+//! snapshot arrives; if refine stops, filtering goes on with the last one.
 
 use super::{
     guarded, secs_since, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort,
 };
 use crate::belief::Gaussian;
 use crate::filter::ekf::Ekf;
+use crate::filter::live_chain::{LiveChainFilter, SwapInfo};
 use crate::filter::pf::Pf;
 use crate::filter::ukf::Ukf;
 use crate::filter::{BayesFilter, FilterError};
 use crate::ipc::{
-    belief_status, run_loop, Belief, Bus, Control, Hop, Observation, Publisher, StageKind,
-    StageStats, Subscriber, Wake,
+    belief_status, run_loop, Belief, Bus, Control, Hop, Observation, Publisher, SliceSample,
+    SliceSubscriber, StageKind, StageStats, Subscriber, Wake, Wakeable,
 };
 use crate::model::{Measurement, ObsMask, SdeModel};
 use crate::pipeline::config::FilterBackend;
-use crate::pipeline::PipelineConfig;
+use crate::pipeline::supervisor_resume::ResumeBelief;
+use crate::pipeline::{AnyModel, PipelineConfig};
 use crate::rt::Clock;
 use crate::MAX_CONTROL;
 use std::sync::atomic::AtomicBool;
@@ -39,16 +49,19 @@ pub enum Reason {
     /// Every particle/hypothesis has zero likelihood.
     Degenerate = 3,
     Numerical = 4,
+    /// A chain snapshot that failed validation (chain backend).
+    Snapshot = 5,
 }
 
 impl Reason {
     /// Every reason, in index order.
-    pub const ALL: [Reason; 5] = [
+    pub const ALL: [Reason; 6] = [
         Reason::TimeBackwards,
         Reason::Dimension,
         Reason::NonFinite,
         Reason::Degenerate,
         Reason::Numerical,
+        Reason::Snapshot,
     ];
 
     /// Report name.
@@ -59,6 +72,7 @@ impl Reason {
             Reason::NonFinite => "non_finite",
             Reason::Degenerate => "degenerate",
             Reason::Numerical => "numerical",
+            Reason::Snapshot => "snapshot",
         }
     }
 
@@ -80,6 +94,8 @@ pub struct FilterPorts {
     pub control: Subscriber<Control>,
     pub belief: Publisher<Belief>,
     pub stats: StatsPort,
+    /// Chain snapshots (chain backend only).
+    pub chain: Option<SliceSubscriber<u64>>,
 }
 
 impl FilterPorts {
@@ -90,6 +106,16 @@ impl FilterPorts {
             control: bus.subscriber_with(1, false)?,
             belief: bus.publisher()?,
             stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
+            chain: if cfg.filter.backend == FilterBackend::Chain {
+                let dim = cfg.model()?.dims().state;
+                Some(bus.slice_subscriber(
+                    super::refine::CHAIN_CHANNEL,
+                    &super::refine::chain_qos(cfg, dim),
+                    true,
+                )?)
+            } else {
+                None
+            },
         })
     }
 }
@@ -102,8 +128,18 @@ pub fn prior(cfg: &PipelineConfig) -> Gaussian {
 /// Build the configured backend at time `t0` from the prior. The filter's
 /// random stream is seeded from `run.seed` mixed with `filter.pf.seed`.
 pub fn make_filter(cfg: &PipelineConfig, t0: f64) -> Result<Box<dyn BayesFilter>, StageError> {
+    make_filter_from(cfg, &prior(cfg), t0)
+}
+
+/// [`make_filter`] from an explicit prior (a restart resumes from the last
+/// published belief).
+pub fn make_filter_from(
+    cfg: &PipelineConfig,
+    prior: &Gaussian,
+    t0: f64,
+) -> Result<Box<dyn BayesFilter>, StageError> {
     let model = cfg.model()?;
-    let prior = prior(cfg);
+    let prior = *prior;
     let build = |e: &dyn std::fmt::Display| StageError::Build {
         what: "filter",
         reason: e.to_string(),
@@ -114,7 +150,8 @@ pub fn make_filter(cfg: &PipelineConfig, t0: f64) -> Result<Box<dyn BayesFilter>
             pf.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(pf.seed));
             Box::new(Pf::new(model, &pf, &prior, t0).map_err(|e| build(&e))?)
         }
-        FilterBackend::Ekf => {
+        // The chain backend's fallback until its first snapshot.
+        FilterBackend::Ekf | FilterBackend::Chain => {
             Box::new(Ekf::new(model, &cfg.filter.ekf, &prior, t0).map_err(|e| build(&e))?)
         }
         FilterBackend::Ukf => {
@@ -123,12 +160,109 @@ pub fn make_filter(cfg: &PipelineConfig, t0: f64) -> Result<Box<dyn BayesFilter>
     })
 }
 
+/// The filter of a stage: a plain backend, or the chain filter on live
+/// snapshots.
+pub enum Backend {
+    Plain(Box<dyn BayesFilter>),
+    Chain(Box<LiveChainFilter<AnyModel, SliceSample<u64>>>),
+}
+
+impl Backend {
+    /// Build the configured backend at `t0` from `start` (the prior, or the
+    /// belief a restarted stage resumes from).
+    pub fn new(cfg: &PipelineConfig, start: &Gaussian, t0: f64) -> Result<Self, StageError> {
+        let f = make_filter_from(cfg, start, t0)?;
+        Ok(match cfg.filter.backend {
+            FilterBackend::Chain => Backend::Chain(Box::new(LiveChainFilter::new(
+                cfg.model()?,
+                f,
+                cfg.refine.max_states,
+                start,
+                t0,
+            ))),
+            _ => Backend::Plain(f),
+        })
+    }
+    fn dims(&self) -> crate::model::Dims {
+        match self {
+            Backend::Plain(f) => f.dims(),
+            Backend::Chain(f) => f.dims(),
+        }
+    }
+    fn predict(&mut self, t: f64, u: &[f64]) -> Result<(), FilterError> {
+        match self {
+            Backend::Plain(f) => f.predict(t, u),
+            Backend::Chain(f) => f.predict(t, u),
+        }
+    }
+    fn update(&mut self, m: &Measurement) -> Result<crate::filter::UpdateInfo, FilterError> {
+        match self {
+            Backend::Plain(f) => f.update(m),
+            Backend::Chain(f) => f.update(m),
+        }
+    }
+    fn belief(&self) -> Gaussian {
+        match self {
+            Backend::Plain(f) => f.belief(),
+            Backend::Chain(f) => f.belief(),
+        }
+    }
+}
+
+/// Take the newest snapshot from `sub` (if any) and prepare a pending one
+/// for at most `budget`; record swaps in `m`.
+fn chain_work(
+    f: &mut LiveChainFilter<AnyModel, SliceSample<u64>>,
+    sub: &SliceSubscriber<u64>,
+    budget: Duration,
+    m: &mut Metrics,
+) -> Result<(), StageError> {
+    if let Some(s) = sub.receive_sample()? {
+        if f.offer(s).is_err() {
+            m.reject(Reason::Snapshot as usize);
+        }
+    }
+    match f.advance(budget) {
+        Ok(Some(info)) => record_swap(m, &info),
+        Ok(None) => {}
+        Err(_) => m.reject(Reason::Snapshot as usize),
+    }
+    Ok(())
+}
+
+fn record_swap(m: &mut Metrics, info: &SwapInfo) {
+    let c = &mut m.chain;
+    c.versions += 1;
+    c.states = info.states as u64;
+    c.delta_s = info.delta;
+    c.swap.record(info.swap_ns.max(1));
+    c.mass_lost_max = c.mass_lost_max.max(info.mass_lost);
+}
+
 /// Run the filter until `stop`; returns its final stats.
 pub fn run(
+    ports: FilterPorts,
+    cfg: &PipelineConfig,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+) -> Result<StageStats, StageError> {
+    run_with(ports, cfg, clock, stop, None)
+}
+
+/// [`run`] resuming from the last published belief (after a restart): the
+/// filter starts from that Gaussian at its time of validity, which becomes
+/// its time origin, and continues the belief numbering.
+///
+/// Overload (`filter.max_obs_age_us` > 0): an observation that waited
+/// longer than that while a newer one is queued is skipped and counted as
+/// dropped — the freshest data wins, so latency stays bounded by about one
+/// filter step plus that age when the sensor outpaces the filter.
+pub fn run_with(
     mut ports: FilterPorts,
     cfg: &PipelineConfig,
     clock: &dyn Clock,
     stop: &AtomicBool,
+    resume: Option<&ResumeBelief>,
 ) -> Result<StageStats, StageError> {
     let rt = cfg.stages.get(StageKind::Filter);
     let mut m = Metrics::new(
@@ -136,7 +270,12 @@ pub fn run(
         &[Hop::IngestToFilter, Hop::SensorToBelief],
         (cfg.run.warmup_s * 1e9) as u64,
     );
-    let mut filter = make_filter(cfg, 0.0)?;
+    // A restart resumes from the last published belief (the chain backend
+    // spreads it over the first snapshot it receives).
+    let resumed = resume.and_then(|b| b.gaussian().map(|g| (b, g)));
+    let start = resumed.as_ref().map_or_else(|| prior(cfg), |(_, g)| *g);
+    let mut filter = Backend::new(cfg, &start, 0.0)?;
+    let prepare = Duration::from_secs_f64(cfg.filter.chain.prepare_budget_us * 1e-6);
     let dims = filter.dims();
     let model_std = {
         let mut s = [0.0; crate::MAX_OBS];
@@ -144,10 +283,11 @@ pub fn run(
         s
     };
     let mut u = [0.0; MAX_CONTROL];
-    let mut epoch: Option<u64> = None;
+    let mut epoch: Option<u64> = resumed.as_ref().map(|(b, _)| b.t_valid_ns);
     let mut seq = SeqTracker::default();
     let mut out = Belief::default();
-    let mut out_seq = 0u64;
+    let mut out_seq = resumed.as_ref().map(|(b, _)| b.seq + 1).unwrap_or(0);
+    let max_age_ns = (cfg.filter.max_obs_age_us * 1e3) as u64;
     let mut err = None;
     ports.stats.publish(&m, clock.now_ns(), false)?;
     let tick = Duration::from_secs_f64(cfg.run.stats_period_s.min(0.1));
@@ -156,17 +296,37 @@ pub fn run(
     let control = &ports.control;
     let belief = &mut ports.belief;
     let stats = &mut ports.stats;
-    run_loop(&[obs_sub], rt.wake_mode(), tick, stop, |w| {
+    let chain_sub = ports.chain.as_ref();
+    let mut inputs: Vec<&dyn Wakeable> = vec![obs_sub];
+    if let Some(c) = chain_sub {
+        inputs.push(c);
+    }
+    run_loop(&inputs, rt.wake_mode(), tick, stop, |w| {
         guarded(&mut err, || {
             if w == Wake::Data {
                 while let Some(o) = obs_sub.receive()? {
                     let t_in = clock.now_ns();
+                    // An endless backlog must not starve the report (the
+                    // supervisor's heartbeat).
+                    stats.tick(&m, t_in)?;
                     m.dropped += seq.observe(o.header.seq);
+                    if max_age_ns > 0
+                        && t_in.saturating_sub(o.header.t_pub_ns) > max_age_ns
+                        && obs_sub.has_data()
+                    {
+                        m.dropped += 1; // stale, and a fresher one waits
+                        continue;
+                    }
+                    let epoch_ns = *epoch.get_or_insert(o.header.t_valid_ns);
+                    if o.header.t_valid_ns < epoch_ns {
+                        // Measured before the resumed belief: too old.
+                        m.reject(Reason::TimeBackwards as usize);
+                        continue;
+                    }
                     if let (Some(c), _) = control.latest()? {
                         let n = (c.dim as usize).min(dims.control);
                         u[..n].copy_from_slice(&c.u[..n]);
                     }
-                    let epoch_ns = *epoch.get_or_insert(o.header.t_valid_ns);
                     let t = secs_since(epoch_ns, o.header.t_valid_ns);
                     if let Err(e) = filter.predict(t, &u[..dims.control]) {
                         m.reject(Reason::of(&e) as usize);
@@ -214,7 +374,14 @@ pub fn run(
                     m.processed += 1;
                     m.budget.record_released(o.header.t_pub_ns, t_in, now);
                     m.record_hops(&out.trace);
+                    if let (Backend::Chain(f), Some(sub)) = (&mut filter, chain_sub) {
+                        chain_work(f, sub, prepare, &mut m)?;
+                    }
                 }
+            }
+            // Idle wake-ups (a snapshot arrived, or a tick) prepare too.
+            if let (Backend::Chain(f), Some(sub)) = (&mut filter, chain_sub) {
+                chain_work(f, sub, prepare, &mut m)?;
             }
             stats.tick(&m, clock.now_ns())?;
             Ok(())

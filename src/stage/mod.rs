@@ -23,6 +23,7 @@ use crate::ipc::{
     stats_flags, Bus, Hop, HopStats, IpcError, Publisher, StageKind, StageStats, Trace, STATS_HOPS,
     STATS_REASONS,
 };
+use crate::pipeline::supervisor_resume::Resume;
 use crate::pipeline::{ConfigError, PipelineConfig};
 use crate::rt::{Budget, Clock, LatencyHist, RtApplied};
 use std::sync::atomic::AtomicBool;
@@ -113,6 +114,18 @@ pub struct Metrics {
     /// Control only: ∫[q(x̂) + w‖u‖²]dt and T after the warm-up.
     pub cost_integral: f64,
     pub cost_time: f64,
+    /// Chain figures (filter with the chain backend, refine).
+    pub chain: ChainMetrics,
+}
+
+/// Chain figures of a stage (see the `chain_*` fields of [`StageStats`]).
+#[derive(Debug, Default)]
+pub struct ChainMetrics {
+    pub versions: u64,
+    pub states: u64,
+    pub delta_s: f64,
+    pub swap: LatencyHist,
+    pub mass_lost_max: f64,
 }
 
 impl Metrics {
@@ -135,6 +148,7 @@ impl Metrics {
             waypoints_reached: 0,
             cost_integral: 0.0,
             cost_time: 0.0,
+            chain: ChainMetrics::default(),
         }
     }
 
@@ -205,6 +219,12 @@ impl Metrics {
                 0.0
             },
             control_cost_time_s: self.cost_time,
+            chain_versions: self.chain.versions,
+            chain_states: self.chain.states,
+            chain_delta_s: self.chain.delta_s,
+            chain_swap_p50_ns: self.chain.swap.quantile(0.5),
+            chain_swap_p99_ns: self.chain.swap.quantile(0.99),
+            chain_mass_lost_max: self.chain.mass_lost_max,
             ..StageStats::default()
         };
         for (slot, (hop, h)) in s.hops.iter_mut().zip(&self.hops) {
@@ -298,15 +318,37 @@ pub fn run_stage(
     clock: &dyn Clock,
     stop: &AtomicBool,
 ) -> Result<StageStats, StageError> {
+    run_stage_with(bus, cfg, id, clock, stop, &Resume::default())
+}
+
+/// [`run_stage`] resuming from `resume` (a restart by the supervisor; see
+/// [`crate::pipeline::supervisor_resume`]).
+pub fn run_stage_with(
+    bus: &BusConfig,
+    cfg: &PipelineConfig,
+    id: StageIdentity,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+    resume: &Resume,
+) -> Result<StageStats, StageError> {
     let b = Bus::open(bus, id.kind.name())?;
     match id.kind {
         StageKind::Ingest => ingest::run(ingest::IngestPorts::open(&b, id, cfg)?, cfg, clock, stop),
-        StageKind::Filter => filter::run(filter::FilterPorts::open(&b, id, cfg)?, cfg, clock, stop),
-        StageKind::Control => {
-            control::run(control::ControlPorts::open(&b, id, cfg)?, cfg, clock, stop)
+        StageKind::Filter => {
+            let ports = filter::FilterPorts::open(&b, id, cfg)?;
+            filter::run_with(ports, cfg, clock, stop, resume.belief.as_ref())
         }
+        StageKind::Control => {
+            let ports = control::ControlPorts::open(&b, id, cfg)?;
+            control::run_with(ports, cfg, clock, stop, resume.control.as_ref())
+        }
+        // Refine's restart hook: `resume.state_dir` / `Resume::read_checkpoint`
+        // (its chain snapshot, issue 4).
         StageKind::Refine => refine::run(refine::RefinePorts::open(&b, id, cfg)?, cfg, clock, stop),
-        StageKind::Plant => plant::run(plant::PlantPorts::open(&b, id, cfg)?, cfg, clock, stop),
+        StageKind::Plant => {
+            let ports = plant::PlantPorts::open(&b, id, cfg)?;
+            plant::run_resumed(ports, cfg, clock, stop, None, resume)
+        }
     }
 }
 

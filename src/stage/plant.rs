@@ -16,6 +16,7 @@ use super::{stopped, Metrics, StageError, StageIdentity, StatsPort};
 use crate::ipc::{Bus, Control, Publisher, SensorSample, StageKind, StageStats, Subscriber, Truth};
 use crate::model::discrete::em_integrate;
 use crate::model::{simulate_observation, SdeModel};
+use crate::pipeline::supervisor_resume::Resume;
 use crate::pipeline::PipelineConfig;
 use crate::rng::{self, SimRng};
 use crate::rt::Clock;
@@ -128,11 +129,26 @@ pub fn run(
 
 /// [`run`], stopping after at most `max_samples` samples.
 pub fn run_for(
+    ports: PlantPorts,
+    cfg: &PipelineConfig,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+    max_samples: Option<u64>,
+) -> Result<StageStats, StageError> {
+    run_resumed(ports, cfg, clock, stop, max_samples, &Resume::default())
+}
+
+/// [`run_for`] resuming after a restart from the last truth: the simulation
+/// continues from that true state (with a fresh noise stream: the seed is
+/// mixed with the restart count) and the channel's numbering continues
+/// after it (docs/sensor-abi.md, publisher rule 2).
+pub fn run_resumed(
     mut ports: PlantPorts,
     cfg: &PipelineConfig,
     clock: &dyn Clock,
     stop: &AtomicBool,
     max_samples: Option<u64>,
+    resume: &Resume,
 ) -> Result<StageStats, StageError> {
     let rt = cfg.stages.get(StageKind::Plant);
     let warmup_ns = (cfg.run.warmup_s * 1e9) as u64;
@@ -140,10 +156,18 @@ pub fn run_for(
     let model = cfg.model()?;
     let dims = model.dims();
     let pos_axes = model.position_axes();
+    let truth0 = resume
+        .truth
+        .as_ref()
+        .filter(|t| t.x.len() == dims.state && t.x.iter().all(|v| v.is_finite()));
+    let seq0 = truth0.map(|t| t.seq + 1).unwrap_or(0);
     let mut sim = Simulator::new(
         model,
-        &cfg.plant.initial_state,
-        cfg.run.seed,
+        truth0.map(|t| &t.x[..]).unwrap_or(&cfg.plant.initial_state),
+        match resume.restarts {
+            0 => cfg.run.seed,
+            n => cfg.run.seed ^ rng::splitmix64(n as u64),
+        },
         cfg.plant.integration_dt,
     );
     let period_ns = (1e9 / cfg.plant.sensor_rate_hz).round().max(1.0) as u64;
@@ -213,14 +237,14 @@ pub fn run_for(
         t_prev = t_k;
 
         sim.measure(&mut y[..dims.obs]);
-        sample.seq = k;
+        sample.seq = seq0 + k;
         sample.t_meas_ns = t_k;
         sample.values[..dims.obs].copy_from_slice(&y[..dims.obs]);
         let t_pub = clock.now_ns();
         sample.t_pub_ns = t_pub;
         ports.sensor.publish(&sample)?;
 
-        truth.header.seq = k;
+        truth.header.seq = seq0 + k;
         truth.header.t_valid_ns = t_k;
         truth.header.t_pub_ns = clock.now_ns();
         truth.x[..dims.state].copy_from_slice(sim.state());

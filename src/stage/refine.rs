@@ -1,30 +1,342 @@
-//! Refine: the anytime Markov-chain refinement stage. Until a backend needs a
-//! chain (issue 4) it follows the belief stream — counting beliefs, and
-//! beliefs superseded before it looked — and reports like every stage, so
-//! the pipeline's process layout, priorities and shutdown are already those
-//! of the final design. It runs at the lowest priority and never blocks the
-//! filter (the belief channel is latest-value).
+//! Refine: the anytime Markov-chain refinement stage (issue 4). It grows a
+//! bounded chain around the latest belief and publishes versioned snapshots
+//! of it, written in place on the `chain` slice channel, for the filter's
+//! chain backend.
+//!
+//! Each round (every `refine.period_ms`, for at most `refine.work_ms`):
+//! 1. First round: a batch chain (thesis Alg. 2.1) of `initial_states`
+//!    around the prior, published at once (a crude chain quickly).
+//! 2. Incremental construction (Alg. 2.3: add z, ConnectState(z), reconnect
+//!    Near(z)) with new states drawn around the latest belief: N(m(τ),
+//!    (inflate·σ)²) with m(τ) the belief mean carried by the uncontrolled
+//!    drift for τ ~ U[0, horizon_s] (the belief moves; the chain must be
+//!    there before it), σ floored at `min_std_fraction` of the bounds, mixed
+//!    with `uniform_fraction` uniform draws (exploration).
+//! 3. Exponential backup (§3.3.2): after each insertion δ is halved until it
+//!    is below the holding time of every (re)connected state
+//!    ([`TimeEqualized::backup`]).
+//! 4. Bounded size: above `max_states`, the `retire_fraction` of states
+//!    farthest from the belief (Mahalanobis distance under the inflated
+//!    belief covariance — far states carry negligible belief mass) are
+//!    retired and their neighbours reconnected ([`crate::chain::retire`]);
+//!    δ is refitted to the remaining holding times (it may grow back).
+//! 5. Every `publish_period_ms`: P^δ is built ([`PropagationKernel`]) and
+//!    the snapshot written in place ([`crate::chain::snapshot::write`]).
+//!
+//! The snapshot service keeps history 1 and buffer 1 (latest value) and
+//! lets a subscriber hold 2 snapshots (the filter's active and pending
+//! ones), so the number of live snapshots in shared memory is fixed by the
+//! port settings. The stage runs at the lowest priority and never blocks
+//! the filter: the belief channel is latest-value and a slow filter only
+//! misses intermediate versions.
+//!
+//! With a filter backend other than `chain` nobody reads the chain: refine
+//! then only follows the beliefs and reports (no rounds, no snapshots).
 
 use super::{guarded, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort};
-use crate::ipc::{run_loop, Belief, Bus, StageKind, StageStats, Subscriber, Wake};
-use crate::pipeline::PipelineConfig;
+use crate::belief::Gaussian;
+use crate::chain::snapshot::{self, SnapshotMeta};
+use crate::chain::{
+    moment_equations, Chain, ChainConfig, NearRule, PropagationKernel, Sampler, TimeEqualized,
+};
+use crate::ipc::{
+    run_loop, Belief, Bus, Qos, SlicePublisher, SliceQos, StageKind, StageStats, Subscriber, Wake,
+};
+use crate::model::SdeModel;
+use crate::pipeline::{scenario::AnyModel, PipelineConfig};
+use crate::rng::SimRng;
 use crate::rt::Clock;
+use crate::{MAX_CONTROL, MAX_STATE};
+use rand::RngExt;
 use std::sync::atomic::AtomicBool;
-use std::time::Duration;
+use std::time::{Duration, Instant};
+
+/// The slice channel of chain snapshots.
+pub const CHAIN_CHANNEL: &str = "chain";
+
+/// The construction parameters of the pipeline's chain: moment-matching
+/// kernel with the k-NN Near rule of `refine.knn_c`, built for u₀ = 0.
+pub fn chain_config(cfg: &PipelineConfig, dim: usize) -> ChainConfig {
+    ChainConfig::moment_matched(dim).with_near(NearRule::Knn {
+        c: cfg.refine.knn_c,
+    })
+}
+
+/// The snapshot channel's QoS (identical for refine and filter): room for a
+/// chain of `refine.max_states` states with the k-NN rule's out-degree.
+pub fn chain_qos(cfg: &PipelineConfig, dim: usize) -> SliceQos {
+    let n = cfg.refine.max_states;
+    let k = ((cfg.refine.knn_c * (n as f64).ln()).ceil() as usize)
+        .max(moment_equations(dim) + 1)
+        .min(n - 1);
+    SliceQos {
+        max_len: snapshot::words_needed(dim, n, n * k),
+        qos: Qos {
+            history: 1,
+            max_buffer: 1,
+            default_buffer: 1,
+            // Two: a restarted refine connects while the dead one's
+            // connection may still be held by the filter.
+            max_publishers: 2,
+            max_subscribers: 3,
+            max_nodes: 8,
+        },
+    }
+}
 
 /// The ports of the refine stage.
 pub struct RefinePorts {
     pub belief: Subscriber<Belief>,
+    pub chain: SlicePublisher<u64>,
     pub stats: StatsPort,
 }
 
 impl RefinePorts {
     /// Open them on `bus`.
     pub fn open(bus: &Bus, id: StageIdentity, cfg: &PipelineConfig) -> Result<Self, StageError> {
+        let dim = cfg.model()?.dims().state;
         Ok(Self {
             belief: bus.subscriber()?,
+            chain: bus.slice_publisher(CHAIN_CHANNEL, &chain_qos(cfg, dim))?,
             stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
         })
+    }
+}
+
+/// The anytime chain builder (the stage's state, usable without ports).
+pub struct Refiner {
+    model: AnyModel,
+    cfg: PipelineConfig,
+    chain: Option<Chain>,
+    eq: TimeEqualized,
+    kern: PropagationKernel,
+    vol: Vec<f64>,
+    belief: Gaussian,
+    rng: SimRng,
+    lineage: u64,
+    version: u64,
+    touched: Vec<u32>,
+    rec: Vec<u32>,
+    /// Insertions rejected by the chain (e.g. duplicate coordinates).
+    pub failed_inserts: u64,
+    /// States retired so far.
+    pub retired: u64,
+}
+
+impl Refiner {
+    /// A builder for `cfg`'s model, starting from the filter's prior;
+    /// `lineage` identifies this chain's id space.
+    pub fn new(cfg: &PipelineConfig, lineage: u64) -> Result<Self, StageError> {
+        let model = cfg.model()?;
+        let eq = TimeEqualized::new(cfg.sample_dt()).map_err(|e| StageError::Build {
+            what: "chain",
+            reason: e.to_string(),
+        })?;
+        Ok(Self {
+            model,
+            cfg: cfg.clone(),
+            chain: None,
+            eq,
+            kern: PropagationKernel::default(),
+            vol: Vec::new(),
+            belief: super::filter::prior(cfg),
+            rng: crate::rng::stream(cfg.run.seed, 0x5eed_c4a1),
+            lineage,
+            version: 0,
+            touched: Vec::new(),
+            rec: Vec::new(),
+            failed_inserts: 0,
+            retired: 0,
+        })
+    }
+
+    /// Follow a new belief (ignored unless finite and of the model's size).
+    pub fn set_belief(&mut self, g: &Gaussian) {
+        if g.dim == self.belief.dim && g.is_finite() {
+            self.belief = *g;
+        }
+    }
+
+    /// Current chain size.
+    pub fn len(&self) -> usize {
+        self.chain.as_ref().map_or(0, |c| c.len())
+    }
+    /// Whether there is no chain yet.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Current δ.
+    pub fn delta(&self) -> f64 {
+        self.eq.delta()
+    }
+    /// Versions published.
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+
+    /// The sampling distribution around the belief (σ floored).
+    fn sampler_at(&self, mean: &[f64]) -> Option<Sampler> {
+        let d = self.belief.dim;
+        let b = self.model.bounds();
+        let mut g = self.belief;
+        g.mean_mut().copy_from_slice(mean);
+        for i in 0..d {
+            let floor = self.cfg.refine.min_std_fraction * (b.hi()[i] - b.lo()[i]);
+            let v = g.cov_at(i, i);
+            if v < floor * floor {
+                g.set_cov(i, i, floor * floor);
+            }
+        }
+        Sampler::around(
+            &g,
+            self.cfg.refine.inflate,
+            self.cfg.refine.uniform_fraction,
+        )
+    }
+
+    /// A new state: around the belief mean propagated for τ ~ U[0, horizon].
+    fn draw(&mut self, x: &mut [f64]) {
+        let d = self.belief.dim;
+        let h = self.cfg.refine.horizon_s;
+        let tau = if h > 0.0 {
+            self.rng.random::<f64>() * h
+        } else {
+            0.0
+        };
+        let mut m = [0.0; MAX_STATE];
+        m[..d].copy_from_slice(self.belief.mean());
+        let steps = (tau / 0.01).ceil() as usize;
+        let nu = self.model.dims().control;
+        let u = [0.0; MAX_CONTROL];
+        let mut f = [0.0; MAX_STATE];
+        for _ in 0..steps {
+            self.model.drift(&m[..d], &u[..nu], &mut f[..d]);
+            for i in 0..d {
+                m[i] += f[i] * tau / steps as f64;
+            }
+        }
+        self.model.bounds().project(&mut m[..d]);
+        match self.sampler_at(&m[..d]) {
+            Some(s) => s.sample(self.model.bounds(), &mut self.rng, x),
+            None => Sampler::Uniform.sample(self.model.bounds(), &mut self.rng, x),
+        }
+    }
+
+    /// One round of work for at most `budget`; returns states added.
+    pub fn work(&mut self, budget: Duration) -> Result<usize, StageError> {
+        let t0 = Instant::now();
+        let d = self.belief.dim;
+        let build = |e: &dyn std::fmt::Display| StageError::Build {
+            what: "chain",
+            reason: e.to_string(),
+        };
+        if self.chain.is_none() {
+            let n = self.cfg.refine.initial_states;
+            let mut pts = vec![0.0; n * d];
+            for p in pts.chunks_exact_mut(d) {
+                self.draw(p);
+            }
+            let c = Chain::batch(&self.model, chain_config(&self.cfg, d), &pts)
+                .map_err(|e| build(&e))?;
+            self.eq.fit(c.holding());
+            self.chain = Some(c);
+            return Ok(n);
+        }
+        let mut added = 0;
+        let mut x = [0.0; MAX_STATE];
+        while t0.elapsed() < budget {
+            self.draw(&mut x[..d]);
+            let chain = self.chain.as_mut().expect("built");
+            match chain.add_state(&self.model, &x[..d], &mut self.rec) {
+                Ok(_) => {
+                    self.eq.backup(chain.holding(), &self.rec);
+                    added += 1;
+                }
+                Err(_) => self.failed_inserts += 1,
+            }
+            if chain.len() > self.cfg.refine.max_states {
+                self.retire().map_err(|e| build(&e))?;
+            }
+        }
+        Ok(added)
+    }
+
+    /// Retire the states farthest from the belief (see the module doc).
+    fn retire(&mut self) -> Result<(), crate::chain::ChainError> {
+        let chain = self.chain.as_mut().expect("built");
+        let n = chain.len();
+        let target = ((self.cfg.refine.max_states as f64) * (1.0 - self.cfg.refine.retire_fraction))
+            as usize;
+        let d = chain.dim();
+        let infl = self.cfg.refine.inflate;
+        let mut l = [0.0; MAX_STATE * MAX_STATE];
+        for (c, v) in l[..d * d].iter_mut().zip(self.belief.cov()) {
+            *c = v * infl * infl;
+        }
+        let b = self.model.bounds();
+        for i in 0..d {
+            let floor = self.cfg.refine.min_std_fraction * (b.hi()[i] - b.lo()[i]) * infl;
+            if l[i + i * d] < floor * floor {
+                l[i + i * d] = floor * floor;
+            }
+        }
+        let ok = crate::chain::linalg::cholesky(&mut l[..d * d], d);
+        let mut dist: Vec<(f64, u32)> = (0..n)
+            .map(|i| {
+                let z = chain.state(i);
+                let mut y = [0.0; MAX_STATE];
+                for a in 0..d {
+                    y[a] = z[a] - self.belief.mean[a];
+                }
+                if ok {
+                    crate::chain::linalg::forward_sub(&l[..d * d], d, &mut y[..d]);
+                }
+                (y[..d].iter().map(|v| v * v).sum(), i as u32)
+            })
+            .collect();
+        dist.select_nth_unstable_by(target, |a, b| a.0.total_cmp(&b.0));
+        let mut keep = vec![false; n];
+        for &(_, i) in &dist[..target] {
+            keep[i as usize] = true;
+        }
+        let reduced = crate::chain::retire::retire(&self.model, chain, &keep, &mut self.touched)?;
+        self.retired += (n - reduced.len()) as u64;
+        self.eq.fit(reduced.holding());
+        self.chain = Some(reduced);
+        Ok(())
+    }
+
+    /// Write the current chain as the next version into `out` (in place);
+    /// returns the words written.
+    pub fn write_snapshot(&mut self, out: &mut [u64], t_pub_ns: u64) -> Result<usize, StageError> {
+        let Some(chain) = self.chain.as_mut() else {
+            return Ok(0);
+        };
+        snapshot::cell_volumes(chain, &mut self.vol);
+        let view = chain.view();
+        self.kern.rebuild(&view, self.eq.delta(), false);
+        self.version += 1;
+        let meta = SnapshotMeta {
+            version: self.version,
+            lineage: self.lineage,
+            t_pub_ns,
+        };
+        snapshot::write(out, meta, &view, &self.vol, &self.kern).map_err(|e| StageError::Build {
+            what: "chain snapshot",
+            reason: e.to_string(),
+        })
+    }
+
+    /// Words the next snapshot needs.
+    pub fn snapshot_words(&mut self) -> usize {
+        match self.chain.as_mut() {
+            Some(c) => {
+                c.compact();
+                let v = c.compact_view().expect("compact");
+                snapshot::words_needed(v.dim, v.len(), v.nnz())
+            }
+            None => 0,
+        }
     }
 }
 
@@ -40,19 +352,57 @@ pub fn run(
     let mut seq = SeqTracker::default();
     let mut err = None;
     ports.stats.publish(&m, clock.now_ns(), false)?;
+    // A lineage per refine process: a restarted refine starts a new id space.
+    let lineage = crate::rng::splitmix64(clock.now_ns() ^ (std::process::id() as u64) << 32);
+    let mut refiner = Refiner::new(cfg, lineage)?;
     let tick = Duration::from_secs_f64(cfg.refine.period_ms * 1e-3);
+    let work = Duration::from_secs_f64(cfg.refine.work_ms * 1e-3);
+    let publish_ns = (cfg.refine.publish_period_ms * 1e6) as u64;
+    let period_ns = (cfg.refine.period_ms * 1e6) as u64;
+    // The chain has one consumer, the filter's chain backend: with another
+    // backend refine only follows the beliefs and reports, instead of
+    // spending a core's worth of rounds (and cache and memory bandwidth the
+    // real-time stages share) on a chain nobody reads.
+    let active = cfg.filter.backend == crate::pipeline::config::FilterBackend::Chain;
+    let mut next_work = if active { 0u64 } else { u64::MAX };
+    let mut next_publish = 0u64;
     let belief = &ports.belief;
+    let chain_pub = &mut ports.chain;
     let stats = &mut ports.stats;
     run_loop(&[belief], rt.wake_mode(), tick, stop, |w| {
         guarded(&mut err, || {
             if w == Wake::Data {
-                let t_in = clock.now_ns();
                 let (latest, skipped) = belief.latest()?;
                 if let Some(b) = latest {
                     m.dropped += skipped + seq.observe(b.header.seq);
                     m.processed += 1;
-                    m.budget
-                        .record_released(b.header.t_pub_ns, t_in, clock.now_ns());
+                    refiner.set_belief(&b.gaussian());
+                }
+            }
+            let now = clock.now_ns();
+            if now >= next_work {
+                next_work = now + period_ns;
+                let t_in = clock.now_ns();
+                let fresh = refiner.is_empty();
+                refiner.work(work)?;
+                m.budget.record(t_in, clock.now_ns());
+                let now = clock.now_ns();
+                if fresh || now >= next_publish {
+                    next_publish = now + publish_ns;
+                    let len = refiner.snapshot_words();
+                    if len > chain_pub.max_len() {
+                        return Err(StageError::Build {
+                            what: "chain snapshot",
+                            reason: format!(
+                                "{len} words exceed the channel's {}",
+                                chain_pub.max_len()
+                            ),
+                        });
+                    }
+                    chain_pub.publish_with(len, |buf| refiner.write_snapshot(buf, now))??;
+                    m.chain.versions = refiner.version();
+                    m.chain.states = refiner.len() as u64;
+                    m.chain.delta_s = refiner.delta();
                 }
             }
             stats.tick(&m, clock.now_ns())?;

@@ -1,0 +1,1001 @@
+//! The Markov-chain filter on live chain snapshots (issue 4): the Bayes
+//! recursion of thesis §3.3 (eq. 3.6) run directly on a snapshot that the
+//! refine stage wrote into shared memory ([`crate::chain::snapshot`]),
+//! while newer versions of the chain keep arriving.
+//!
+//! ```text
+//! predict over Δ:  φ ← ((P^δ_u)ᵀ)^{⌊Δ/δ⌋} φ, then a fraction θ = frac(Δ/δ) of a step
+//! update:          φ(z) ∝ p(y | z) φ(z),  p(y | z) = Π_{i∈mask} N(y_i; g_i(z), σ_i²)
+//! estimate:        x̂ = Σ_z z φ(z),  P̂ = Σ_z (z − x̂)(z − x̂)ᵀ φ(z)
+//! ```
+//! P^δ is read in place from the snapshot (gather form: stay weights and
+//! incoming edges), so propagation allocates and copies nothing.
+//!
+//! **New versions** ([`LiveChainFilter::offer`], [`LiveChainFilter::advance`]):
+//! a received snapshot is *prepared* in chunks within a time budget per
+//! call — its index structure is validated and the per-state observation
+//! means g(z) of that version are computed into a second buffer — while the
+//! filter keeps running on the active one. Then the swap, O(n_old + n_new):
+//! 1. remap the belief by state id (ids are strictly increasing: one
+//!    merge-join), as a density ρ = φ/vol so that states whose cells shrank
+//!    (new neighbours) keep their density and not their mass;
+//! 2. a new state gets the average density of its Near set (its transition
+//!    row) over the states that existed — the thesis's `ApproximateDensity`
+//!    (§3.5), applied as in [`super::chain_filter`];
+//! 3. φ = ρ·vol, renormalised. The mass of retired states before
+//!    renormalisation is reported (`mass_lost`).
+//!
+//! A snapshot of another lineage (refine restarted from scratch: ids not
+//! comparable), the first snapshot, or a remap that leaves no mass, start
+//! from the current Gaussian belief: φ(z) ∝ N(z; x̂, P̂)·vol(z). Until the
+//! first snapshot arrives, the `fallback` filter (an EKF in the pipeline)
+//! answers, so the filter never waits for refine; if refine stops, the
+//! filter keeps its last snapshot, which stays mapped while it is held.
+//!
+//! **Controls.** The chain is built for u₀ = 0. For u ≠ u₀ the kernel is
+//! tilted as in [`super::chain_filter`], p_u(z'|z) ∝ p(z'|z) exp(θᵀ(z' − z)),
+//! with θ = (FFᵀ)⁻¹(f(x̂,u) − f(x̂,u₀)) evaluated once at the belief mean
+//! (choice: exact for control-affine models with constant input matrix and
+//! diffusion, such as the ship and linear SDEs, first order otherwise).
+//! Then exp(θᵀ(z' − z)) = a(z')/a(z) with a(z) = exp(θᵀ(z − x̂)), and
+//! p_u(z'|z) = p(z'|z) a(z')/c(z), c(z) = Σ_{z''} p(z''|z) a(z''): one pass
+//! over the outgoing rows when u changes (n exponentials, nnz products),
+//! and each step costs one extra product per state.
+//!
+//! **Degenerate updates** (no state with mass explains the observation: the
+//! belief left the chain's support): the mass is spread again from the last
+//! Gaussian belief with its covariance inflated, and the update is refused
+//! with [`FilterError::Degenerate`].
+
+use std::cell::Cell;
+use std::time::{Duration, Instant};
+
+use crate::belief::{Gaussian, WeightedMoments};
+use crate::chain::linalg::{backward_sub_t, cholesky, forward_sub};
+use crate::chain::snapshot::{SnapshotError, SnapshotView};
+use crate::filter::{check_measurement, check_predict, BayesFilter, FilterError, UpdateInfo};
+use crate::model::{Dims, Measurement, SdeModel};
+use crate::{MAX_CONTROL, MAX_NOISE, MAX_OBS, MAX_STATE};
+
+const HALF_LOG_2PI: f64 = 0.918_938_533_204_672_8;
+/// Posterior mass flushed to zero after an update (see `chain_filter`).
+const FLUSH: f64 = 1e-150;
+/// States prepared per chunk before the time budget is checked.
+const CHUNK: usize = 256;
+/// Covariance inflation (std factor) of a re-spread after a degenerate update.
+const RESPREAD_INFLATE: f64 = 2.0;
+
+/// What a swap did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SwapInfo {
+    pub version: u64,
+    pub states: usize,
+    pub delta: f64,
+    /// Belief mass on retired states, before renormalisation.
+    pub mass_lost: f64,
+    /// The belief was started from its Gaussian summary (first snapshot,
+    /// new lineage, or nothing left after the remap).
+    pub from_gaussian: bool,
+    /// Duration of the swap itself (remap, new-state mass, renormalise).
+    pub swap_ns: u64,
+    /// Total preparation time of this version (validation, g(z)), spread
+    /// over calls.
+    pub prepare_ns: u64,
+}
+
+struct Pending<S> {
+    snap: S,
+    next: usize,
+    buf: usize,
+    prepare_ns: u64,
+}
+
+struct Active<S> {
+    snap: S,
+    buf: usize,
+    lineage: u64,
+}
+
+/// The chain filter on live snapshots held as `S` (a shared-memory sample in
+/// the pipeline, a `Vec<u64>` in tests).
+pub struct LiveChainFilter<M: SdeModel, S: AsRef<[u64]>> {
+    model: M,
+    dims: Dims,
+    max_states: usize,
+    fallback: Box<dyn BayesFilter>,
+    active: Option<Active<S>>,
+    pending: Option<Pending<S>>,
+    obs_mean: [Vec<f64>; 2],
+    phi: Vec<f64>,
+    tmp: Vec<f64>,
+    aux: Vec<f64>,
+    a: Vec<f64>,
+    inv_c: Vec<f64>,
+    tilted: bool,
+    u_last: [f64; MAX_CONTROL],
+    t: f64,
+    last: Gaussian,
+    belief: Cell<Option<Gaussian>>,
+    versions: u64,
+    respreads: u64,
+}
+
+fn gaussian_weights(view: &SnapshotView, g: &Gaussian, out: &mut [f64]) {
+    let d = view.dim;
+    let n = view.len();
+    let mut l = [0.0; MAX_STATE * MAX_STATE];
+    l[..d * d].copy_from_slice(g.cov());
+    if !cholesky(&mut l[..d * d], d) {
+        // Singular: all mass on the nearest state.
+        let mut best = (f64::INFINITY, 0);
+        for i in 0..n {
+            let q: f64 = (0..d).map(|a| (view.state(i)[a] - g.mean[a]).powi(2)).sum();
+            if q < best.0 {
+                best = (q, i);
+            }
+        }
+        out[..n].fill(0.0);
+        out[best.1] = 1.0;
+        return;
+    }
+    let mut lmax = f64::NEG_INFINITY;
+    for i in 0..n {
+        let z = view.state(i);
+        let mut y = [0.0; MAX_STATE];
+        for a in 0..d {
+            y[a] = z[a] - g.mean[a];
+        }
+        forward_sub(&l[..d * d], d, &mut y[..d]);
+        let q: f64 = y[..d].iter().map(|v| v * v).sum();
+        let lw = -0.5 * q + view.volume[i].max(1e-300).ln();
+        out[i] = lw;
+        lmax = lmax.max(lw);
+    }
+    let mut s = 0.0;
+    for v in &mut out[..n] {
+        *v = (*v - lmax).exp();
+        s += *v;
+    }
+    for v in &mut out[..n] {
+        *v /= s;
+    }
+}
+
+impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
+    /// A filter for `model` that answers with `fallback` (started from
+    /// `prior` at `t0`) until the first snapshot is installed, and accepts
+    /// snapshots of at most `max_states` states (buffers are sized here).
+    pub fn new(
+        model: M,
+        mut fallback: Box<dyn BayesFilter>,
+        max_states: usize,
+        prior: &Gaussian,
+        t0: f64,
+    ) -> Self {
+        let dims = model.dims();
+        fallback.reset(t0, prior);
+        let n = max_states.max(1);
+        Self {
+            model,
+            dims,
+            max_states: n,
+            fallback,
+            active: None,
+            pending: None,
+            obs_mean: [
+                Vec::with_capacity(n * dims.obs),
+                Vec::with_capacity(n * dims.obs),
+            ],
+            phi: Vec::with_capacity(n),
+            tmp: Vec::with_capacity(n),
+            aux: Vec::with_capacity(n),
+            a: Vec::with_capacity(n),
+            inv_c: Vec::with_capacity(n),
+            tilted: false,
+            u_last: [f64::NAN; MAX_CONTROL],
+            t: t0,
+            last: *prior,
+            belief: Cell::new(None),
+            versions: 0,
+            respreads: 0,
+        }
+    }
+
+    /// Hand over a received snapshot; it replaces a pending one (which is
+    /// released). The active snapshot is untouched until the swap.
+    pub fn offer(&mut self, snap: S) -> Result<(), SnapshotError> {
+        let v = SnapshotView::parse(snap.as_ref())?;
+        if v.dim != self.dims.state {
+            return Err(SnapshotError::Shape(
+                "state dimension differs from the model",
+            ));
+        }
+        if v.is_empty() {
+            return Err(SnapshotError::Shape("no state"));
+        }
+        if v.len() > self.max_states {
+            return Err(SnapshotError::TooLarge {
+                need: v.len(),
+                have: self.max_states,
+            });
+        }
+        let buf = self.active.as_ref().map_or(0, |a| 1 - a.buf);
+        self.pending = Some(Pending {
+            snap,
+            next: 0,
+            buf,
+            prepare_ns: 0,
+        });
+        Ok(())
+    }
+
+    /// Whether a version is being prepared.
+    pub fn has_pending(&self) -> bool {
+        self.pending.is_some()
+    }
+
+    /// Prepare the pending version for at most about `budget` (one chunk at
+    /// least) and swap to it once it is ready. A snapshot that fails
+    /// validation is dropped with the error.
+    pub fn advance(&mut self, budget: Duration) -> Result<Option<SwapInfo>, SnapshotError> {
+        let Some(p) = self.pending.as_mut() else {
+            return Ok(None);
+        };
+        let t0 = Instant::now();
+        let m = self.dims.obs;
+        let view = SnapshotView::parse(p.snap.as_ref())?;
+        let n = view.len();
+        let g = &mut self.obs_mean[p.buf];
+        if p.next == 0 {
+            g.clear();
+            g.resize(n * m, 0.0);
+        }
+        while p.next < n {
+            let hi = (p.next + CHUNK).min(n);
+            if let Err(e) = view.validate_rows(p.next, hi) {
+                self.pending = None;
+                return Err(e);
+            }
+            for i in p.next..hi {
+                self.model
+                    .obs_mean(view.state(i), &mut g[i * m..(i + 1) * m]);
+            }
+            p.next = hi;
+            if t0.elapsed() >= budget && p.next < n {
+                p.prepare_ns += t0.elapsed().as_nanos() as u64;
+                return Ok(None);
+            }
+        }
+        p.prepare_ns += t0.elapsed().as_nanos() as u64;
+        Ok(Some(self.swap()))
+    }
+
+    fn swap(&mut self) -> SwapInfo {
+        let t0 = Instant::now();
+        let p = self.pending.take().expect("pending");
+        let newv = SnapshotView::parse(p.snap.as_ref()).expect("parsed before");
+        let n_new = newv.len();
+        let mut mass_lost = 0.0;
+        let mut from_gaussian = true;
+        // tmp ← new masses
+        self.tmp.clear();
+        self.tmp.resize(n_new, 0.0);
+        if let Some(act) = self.active.as_ref().filter(|a| a.lineage == newv.lineage) {
+            let old = SnapshotView::parse(act.snap.as_ref()).expect("active parses");
+            let n_old = old.len();
+            // aux[j] = density of new state j, NaN when new.
+            self.aux.clear();
+            self.aux.resize(n_new, f64::NAN);
+            let (mut i, mut j) = (0, 0);
+            while i < n_old && j < n_new {
+                let (a, b) = (old.ids[i], newv.ids[j]);
+                if a == b {
+                    let v = old.volume[i];
+                    self.aux[j] = if v > 0.0 { self.phi[i] / v } else { 0.0 };
+                    i += 1;
+                    j += 1;
+                } else if a < b {
+                    mass_lost += self.phi[i];
+                    i += 1;
+                } else {
+                    j += 1;
+                }
+            }
+            mass_lost += self.phi[i..n_old].iter().sum::<f64>();
+            // New states: mean density over their Near set's existing states.
+            for j in 0..n_new {
+                let rho = if self.aux[j].is_nan() {
+                    let (s, e) = (
+                        newv.row_offsets[j] as usize,
+                        newv.row_offsets[j + 1] as usize,
+                    );
+                    let (mut acc, mut k) = (0.0, 0u32);
+                    for &c in &newv.cols[s..e] {
+                        let r = self.aux[c as usize];
+                        if !r.is_nan() {
+                            acc += r;
+                            k += 1;
+                        }
+                    }
+                    if k > 0 {
+                        acc / k as f64
+                    } else {
+                        0.0
+                    }
+                } else {
+                    self.aux[j]
+                };
+                self.tmp[j] = rho * newv.volume[j];
+            }
+            let s: f64 = self.tmp.iter().sum();
+            if s > 0.0 && s.is_finite() {
+                for v in &mut self.tmp {
+                    *v /= s;
+                }
+                from_gaussian = false;
+            }
+        }
+        if from_gaussian {
+            let g = self.belief_now();
+            gaussian_weights(&newv, &g, &mut self.tmp);
+        }
+        std::mem::swap(&mut self.phi, &mut self.tmp);
+        let info = SwapInfo {
+            version: newv.version,
+            states: n_new,
+            delta: newv.delta,
+            mass_lost,
+            from_gaussian,
+            swap_ns: 0,
+            prepare_ns: p.prepare_ns,
+        };
+        let lineage = newv.lineage;
+        self.active = Some(Active {
+            snap: p.snap,
+            buf: p.buf,
+            lineage,
+        });
+        self.tilted = false;
+        self.u_last = [f64::NAN; MAX_CONTROL];
+        self.belief.set(None);
+        self.versions += 1;
+        SwapInfo {
+            swap_ns: t0.elapsed().as_nanos() as u64,
+            ..info
+        }
+    }
+
+    /// The belief right now (the fallback's before the first snapshot).
+    fn belief_now(&self) -> Gaussian {
+        if self.active.is_some() {
+            self.moments()
+        } else {
+            self.fallback.belief()
+        }
+    }
+
+    /// Versions installed so far.
+    pub fn versions(&self) -> u64 {
+        self.versions
+    }
+    /// Times the belief was re-spread after a degenerate update.
+    pub fn respreads(&self) -> u64 {
+        self.respreads
+    }
+    /// (version, states, δ) of the active snapshot.
+    pub fn active_info(&self) -> Option<(u64, usize, f64)> {
+        let a = self.active.as_ref()?;
+        let v = SnapshotView::parse(a.snap.as_ref()).ok()?;
+        Some((v.version, v.len(), v.delta))
+    }
+    /// The mass function on the active snapshot's states.
+    pub fn masses(&self) -> &[f64] {
+        &self.phi
+    }
+
+    /// Recompute the control tilt for `u` (see the module doc).
+    fn set_tilt(&mut self, view: &SnapshotView, u: &[f64]) {
+        let d = self.dims.state;
+        let nu = self.dims.control;
+        self.u_last[..nu].copy_from_slice(u);
+        let m = self.last.mean;
+        let mut f0 = [0.0; MAX_STATE];
+        let mut fu = [0.0; MAX_STATE];
+        let zero = [0.0; MAX_CONTROL];
+        self.model.drift(&m[..d], &zero[..nu], &mut f0[..d]);
+        self.model.drift(&m[..d], u, &mut fu[..d]);
+        let mut theta = [0.0; MAX_STATE];
+        for k in 0..d {
+            theta[k] = fu[k] - f0[k];
+        }
+        let k = self.dims.noise;
+        let mut bigf = [0.0; MAX_STATE * MAX_NOISE];
+        self.model.diffusion(&m[..d], &mut bigf[..d * k]);
+        let mut l = [0.0; MAX_STATE * MAX_STATE];
+        for i in 0..d {
+            for j in 0..d {
+                l[i + j * d] = (0..k).map(|c| bigf[i + c * d] * bigf[j + c * d]).sum();
+            }
+        }
+        if theta[..d].iter().all(|v| *v == 0.0) || !cholesky(&mut l[..d * d], d) {
+            self.tilted = false;
+            return;
+        }
+        let mut df = [0.0; MAX_STATE];
+        df[..d].copy_from_slice(&theta[..d]);
+        forward_sub(&l[..d * d], d, &mut theta[..d]);
+        backward_sub_t(&l[..d * d], d, &mut theta[..d]);
+        let lambda = self.calibrate_tilt(view, &theta[..d], &df[..d]);
+        for v in &mut theta[..d] {
+            *v *= lambda;
+        }
+        let n = view.len();
+        self.a.clear();
+        self.a.resize(n, 0.0);
+        for z in 0..n {
+            let s = view.state(z);
+            let e: f64 = (0..d).map(|c| theta[c] * (s[c] - m[c])).sum();
+            self.a[z] = e.clamp(-600.0, 600.0).exp();
+        }
+        self.inv_c.clear();
+        self.inv_c.resize(n, 0.0);
+        for z in 0..n {
+            let (s, e) = (
+                view.row_offsets[z] as usize,
+                view.row_offsets[z + 1] as usize,
+            );
+            let c: f64 = view.cols[s..e]
+                .iter()
+                .zip(&view.probs[s..e])
+                .map(|(&j, &p)| p * self.a[j as usize])
+                .sum();
+            self.inv_c[z] = if c > 0.0 && c.is_finite() {
+                1.0 / c
+            } else {
+                0.0
+            };
+        }
+        self.tilted = true;
+    }
+
+    /// The scale λ of the tilt θ such that, over the states carrying the
+    /// most belief mass, the tilted rows' mean jump along θ grows by what
+    /// the control adds, θᵀ(f(z,u) − f(z,u₀))Δt(z). For a Gaussian kernel on
+    /// a dense neighbour set λ = 1; on a finite Near set with neighbours at
+    /// distance r ≫ |Δf|Δt, exp(θᵀΔz) saturates and overshoots, so λ < 1.
+    /// Bisection on λ ∈ [0, 4] (the tilted mean along θ is increasing in λ).
+    fn calibrate_tilt(&self, view: &SnapshotView, theta: &[f64], df: &[f64]) -> f64 {
+        const K: usize = 24;
+        let d = theta.len();
+        // The K states of largest mass (or the first K when φ is not set).
+        let mut top = [(0.0f64, usize::MAX); K];
+        for (i, &w) in self.phi.iter().enumerate().take(view.len()) {
+            if w > top[K - 1].0 || top[K - 1].1 == usize::MAX {
+                let mut k = K - 1;
+                top[k] = (w, i);
+                while k > 0 && (top[k].0 > top[k - 1].0 || top[k - 1].1 == usize::MAX) {
+                    top.swap(k, k - 1);
+                    k -= 1;
+                }
+            }
+        }
+        let shift = |lambda: f64| -> (f64, f64) {
+            let (mut got, mut want) = (0.0, 0.0);
+            for &(_, i) in top.iter().filter(|t| t.1 != usize::MAX) {
+                let (s, e) = (
+                    view.row_offsets[i] as usize,
+                    view.row_offsets[i + 1] as usize,
+                );
+                if s == e {
+                    continue;
+                }
+                let z = view.state(i);
+                let mut emax = f64::NEG_INFINITY;
+                for &j in &view.cols[s..e] {
+                    let y = view.state(j as usize);
+                    let a: f64 = (0..d).map(|c| theta[c] * (y[c] - z[c])).sum();
+                    emax = emax.max(lambda * a);
+                }
+                let (mut m0, mut m1, mut w1) = (0.0, 0.0, 0.0);
+                for (&j, &p) in view.cols[s..e].iter().zip(&view.probs[s..e]) {
+                    let y = view.state(j as usize);
+                    let a: f64 = (0..d).map(|c| theta[c] * (y[c] - z[c])).sum();
+                    let w = p * (lambda * a - emax).exp();
+                    m0 += p * a;
+                    m1 += w * a;
+                    w1 += w;
+                }
+                got += m1 / w1 - m0;
+                want += view.holding[i] * (0..d).map(|c| theta[c] * df[c]).sum::<f64>();
+            }
+            (got, want)
+        };
+        let (hi_got, want) = shift(4.0);
+        if !(want > 0.0) || hi_got <= want {
+            return if want > 0.0 { 4.0 } else { 1.0 };
+        }
+        let (mut lo, mut hi) = (0.0, 4.0);
+        for _ in 0..30 {
+            let mid = 0.5 * (lo + hi);
+            if shift(mid).0 < want {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        0.5 * (lo + hi)
+    }
+
+    /// One step of the equalised chain: out = (P^δ_u)ᵀ phi.
+    fn step(
+        view: &SnapshotView,
+        tilt: Option<(&[f64], &[f64])>,
+        psi: &mut [f64],
+        phi: &[f64],
+        out: &mut [f64],
+    ) {
+        let n = view.len();
+        match tilt {
+            None => {
+                for z in 0..n {
+                    let (s, e) = (view.in_off[z] as usize, view.in_off[z + 1] as usize);
+                    let mut acc = 0.0;
+                    for (w, &src) in view.in_w[s..e].iter().zip(&view.in_src[s..e]) {
+                        acc += w * phi[src as usize];
+                    }
+                    out[z] = view.stay[z] * phi[z] + acc;
+                }
+            }
+            Some((a, inv_c)) => {
+                for z in 0..n {
+                    psi[z] = phi[z] * inv_c[z];
+                }
+                for z in 0..n {
+                    let (s, e) = (view.in_off[z] as usize, view.in_off[z + 1] as usize);
+                    let mut acc = 0.0;
+                    for (w, &src) in view.in_w[s..e].iter().zip(&view.in_src[s..e]) {
+                        acc += w * psi[src as usize];
+                    }
+                    out[z] = view.stay[z] * phi[z] + a[z] * acc;
+                }
+            }
+        }
+    }
+
+    fn respread(&mut self) {
+        let Some(act) = self.active.as_ref() else {
+            return;
+        };
+        let view = SnapshotView::parse(act.snap.as_ref()).expect("active parses");
+        let mut g = self.last;
+        let f2 = RESPREAD_INFLATE * RESPREAD_INFLATE;
+        for v in g.cov_mut() {
+            *v *= f2;
+        }
+        gaussian_weights(&view, &g, &mut self.phi);
+        self.respreads += 1;
+        self.belief.set(None);
+    }
+
+    fn moments(&self) -> Gaussian {
+        let d = self.dims.state;
+        let Some(act) = self.active.as_ref() else {
+            return self.fallback.belief();
+        };
+        let view = SnapshotView::parse(act.snap.as_ref()).expect("active parses");
+        let mut acc = WeightedMoments::new(&self.last.mean[..d]);
+        for (i, &w) in self.phi.iter().enumerate() {
+            if w != 0.0 {
+                acc.add(w, view.state(i));
+            }
+        }
+        acc.gaussian()
+    }
+
+    /// Time of the belief.
+    pub fn time(&self) -> f64 {
+        self.t
+    }
+
+    /// Dimensions of the model.
+    pub fn dims(&self) -> Dims {
+        self.dims
+    }
+
+    /// Restart from N(mean, cov) at `t` (on the active chain, else in the
+    /// fallback).
+    pub fn reset(&mut self, t: f64, prior: &Gaussian) {
+        self.t = t;
+        self.last = *prior;
+        self.fallback.reset(t, prior);
+        if let Some(act) = self.active.as_ref() {
+            let view = SnapshotView::parse(act.snap.as_ref()).expect("active parses");
+            gaussian_weights(&view, prior, &mut self.phi);
+        }
+        self.belief.set(None);
+    }
+
+    /// Propagate to `t` with `u` held.
+    pub fn predict(&mut self, t: f64, u: &[f64]) -> Result<(), FilterError> {
+        check_predict(self.t, t, u, self.dims)?;
+        let dt = t - self.t;
+        let Some(act) = self.active.as_ref() else {
+            self.fallback.predict(t, u)?;
+            self.t = t;
+            self.belief.set(None);
+            return Ok(());
+        };
+        if dt == 0.0 {
+            return Ok(());
+        }
+        // Borrow the snapshot independently of `self`'s buffers.
+        let words: *const [u64] = act.snap.as_ref();
+        // SAFETY: the active snapshot is neither replaced nor dropped in this
+        // function (only `swap` replaces it), so its words outlive `view`.
+        let view = SnapshotView::parse(unsafe { &*words }).expect("active parses");
+        let nu = self.dims.control;
+        if u[..nu] != self.u_last[..nu] {
+            self.set_tilt(&view, u);
+        }
+        let n = view.len();
+        self.tmp.clear();
+        self.tmp.resize(n, 0.0);
+        self.aux.clear();
+        self.aux.resize(n, 0.0);
+        let q = dt / view.delta;
+        let whole = (q + 1e-9).floor();
+        let frac = (q - whole).max(0.0);
+        let tilt = self.tilted.then_some((&self.a[..], &self.inv_c[..]));
+        for _ in 0..whole as usize {
+            Self::step(&view, tilt, &mut self.aux, &self.phi, &mut self.tmp);
+            std::mem::swap(&mut self.phi, &mut self.tmp);
+        }
+        if frac > 1e-9 {
+            Self::step(&view, tilt, &mut self.aux, &self.phi, &mut self.tmp);
+            for z in 0..n {
+                self.phi[z] = (1.0 - frac) * self.phi[z] + frac * self.tmp[z];
+            }
+        }
+        self.t = t;
+        self.belief.set(None);
+        Ok(())
+    }
+
+    /// Condition on a measurement at the current time.
+    pub fn update(&mut self, meas: &Measurement) -> Result<UpdateInfo, FilterError> {
+        let Some(act) = self.active.as_ref() else {
+            let r = self.fallback.update(meas);
+            self.belief.set(None);
+            self.last = self.fallback.belief();
+            return r;
+        };
+        check_measurement(meas, self.dims)?;
+        let m = self.dims.obs;
+        let g = &self.obs_mean[act.buf];
+        let mut std = [0.0; MAX_OBS];
+        match meas.std {
+            Some(s) => std[..m].copy_from_slice(&s[..m]),
+            None => self.model.obs_std(&mut std[..m]),
+        }
+        let mut idx = [0usize; MAX_OBS];
+        let mut inv_var = [0.0; MAX_OBS];
+        let mut nm = 0;
+        let mut cst = 0.0;
+        for i in meas.mask.iter().take_while(|&i| i < m) {
+            idx[nm] = i;
+            inv_var[nm] = 1.0 / (std[i] * std[i]);
+            nm += 1;
+            cst -= std[i].ln() + HALF_LOG_2PI;
+        }
+        let n = self.phi.len();
+        self.aux.clear();
+        self.aux.resize(n, f64::NEG_INFINITY);
+        let mut r = [0.0; MAX_OBS];
+        let mut lmax = f64::NEG_INFINITY;
+        for z in 0..n {
+            if self.phi[z] == 0.0 {
+                continue;
+            }
+            self.model
+                .obs_residual(&meas.y[..m], &g[z * m..(z + 1) * m], &mut r[..m]);
+            let mut q = 0.0;
+            for j in 0..nm {
+                let ri = r[idx[j]];
+                q += ri * ri * inv_var[j];
+            }
+            self.aux[z] = -0.5 * q;
+            lmax = lmax.max(-0.5 * q);
+        }
+        let mut sum = 0.0;
+        self.tmp.clear();
+        self.tmp.resize(n, 0.0);
+        if lmax.is_finite() {
+            for z in 0..n {
+                let a = self.aux[z] - lmax;
+                let w = if a > -700.0 {
+                    self.phi[z] * a.exp()
+                } else {
+                    0.0
+                };
+                self.tmp[z] = w;
+                sum += w;
+            }
+        }
+        if !(sum > 0.0 && sum.is_finite()) {
+            self.respread();
+            self.last = self.moments();
+            return Err(FilterError::Degenerate);
+        }
+        let inv = 1.0 / sum;
+        let mut s2 = 0.0;
+        for z in 0..n {
+            let mut w = self.tmp[z] * inv;
+            if w < FLUSH {
+                w = 0.0;
+            }
+            self.phi[z] = w;
+            s2 += w * w;
+        }
+        self.belief.set(None);
+        self.last = self.moments();
+        self.belief.set(Some(self.last));
+        Ok(UpdateInfo {
+            log_evidence: lmax + sum.ln() + cst,
+            ess: 1.0 / s2,
+            resampled: false,
+        })
+    }
+
+    /// Mean and covariance of the belief.
+    pub fn belief(&self) -> Gaussian {
+        if let Some(g) = self.belief.get() {
+            return g;
+        }
+        let g = self.belief_now();
+        self.belief.set(Some(g));
+        g
+    }
+}
+
+impl<M: SdeModel, S: AsRef<[u64]> + Send> BayesFilter for LiveChainFilter<M, S> {
+    fn name(&self) -> &'static str {
+        "chain"
+    }
+    fn dims(&self) -> Dims {
+        self.dims
+    }
+    fn time(&self) -> f64 {
+        self.t
+    }
+    fn reset(&mut self, t: f64, prior: &Gaussian) {
+        LiveChainFilter::reset(self, t, prior)
+    }
+    fn predict(&mut self, t: f64, u: &[f64]) -> Result<(), FilterError> {
+        LiveChainFilter::predict(self, t, u)
+    }
+    fn update(&mut self, meas: &Measurement) -> Result<UpdateInfo, FilterError> {
+        LiveChainFilter::update(self, meas)
+    }
+    fn belief(&self) -> Gaussian {
+        LiveChainFilter::belief(self)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::chain::snapshot::{encode, SnapshotMeta};
+    use crate::chain::{Chain, ChainConfig, Sampler, TimeEqualized};
+    use crate::filter::chain_filter::ChainFilter;
+    use crate::filter::ekf::{Ekf, EkfConfig};
+    use crate::model::linear::LinearSde;
+    use crate::model::{simulate_observation, Bounds};
+    use nalgebra::DMatrix;
+
+    /// dx = (A x + B u) dt + 0.5 dw, y = x + 0.2 v: constant B and F, so the
+    /// tilt at the belief mean is the per-state tilt of `ChainFilter`.
+    fn model() -> LinearSde {
+        LinearSde::new(
+            "ctl2",
+            DMatrix::from_row_slice(2, 2, &[-1.0, 0.5, -0.5, -1.0]),
+            DMatrix::from_row_slice(2, 1, &[0.0, 1.0]),
+            DMatrix::from_row_slice(2, 2, &[0.5, 0.0, 0.0, 0.5]),
+            DMatrix::identity(2, 2),
+            vec![0.2, 0.2],
+            Bounds::new_box(&[-2.5, -2.5], &[2.5, 2.5]).unwrap(),
+        )
+    }
+
+    fn meta(version: u64, lineage: u64) -> SnapshotMeta {
+        SnapshotMeta {
+            version,
+            lineage,
+            t_pub_ns: 0,
+        }
+    }
+
+    fn live(m: &LinearSde, prior: &Gaussian) -> LiveChainFilter<LinearSde, Vec<u64>> {
+        let ekf = Ekf::new(m.clone(), &EkfConfig::default(), prior, 0.0).unwrap();
+        LiveChainFilter::new(m.clone(), Box::new(ekf), 5000, prior, 0.0)
+    }
+
+    fn chain(m: &LinearSde, n: usize, seed: u64) -> Chain {
+        let mut c = Chain::new(m, ChainConfig::moment_matched(2)).unwrap();
+        let mut t = vec![];
+        c.grow(
+            m,
+            &Sampler::Uniform,
+            n,
+            &mut crate::rng::stream(seed, 1),
+            &mut t,
+        )
+        .unwrap();
+        c
+    }
+
+    #[test]
+    fn on_one_snapshot_it_is_the_offline_chain_filter_and_its_control_tilt_tracks_kalman() {
+        let m = model();
+        let dt = 0.05;
+        let prior = Gaussian::diagonal(&[0.8, -0.4], &[0.3, 0.3]);
+        let mut c = chain(&m, 1500, 3);
+        let mut eq = TimeEqualized::new(dt).unwrap();
+        eq.fit(c.holding());
+        let snap = encode(&mut c, eq.delta(), meta(1, 7));
+        let mut off = ChainFilter::new(m.clone(), c, dt).unwrap();
+        off.reset(0.0, &prior);
+        let mut lf = live(&m, &prior);
+        lf.offer(snap).unwrap();
+        let info = lf.advance(Duration::from_secs(1)).unwrap().unwrap();
+        assert!(info.from_gaussian && info.mass_lost == 0.0);
+        assert_eq!(info.states, 1500);
+        let mut kf = crate::filter::kalman::Kalman::new(m.clone(), &prior, 0.0).unwrap();
+        let mut k0 = crate::filter::kalman::Kalman::new(m.clone(), &prior, 0.0).unwrap();
+        let mut rng = crate::rng::stream(3, 0);
+        let mut x = [0.8, -0.4];
+        let mut worst: f64 = 0.0;
+        let (mut gap, mut gap0) = (0.0f64, 0.0f64);
+        for k in 1..=60 {
+            let t = k as f64 * dt;
+            let u = [if k > 20 { 1.5 } else { 0.0 }];
+            crate::model::discrete::em_integrate(&m, &mut x, &u, dt, 1e-3, &mut rng);
+            let mut y = [0.0; 2];
+            simulate_observation(&m, &x, &mut rng, &mut y);
+            lf.predict(t, &u).unwrap();
+            kf.predict(t, &u).unwrap();
+            k0.predict(t, &[0.0]).unwrap();
+            let b = lf.update(&Measurement::full(&y)).unwrap();
+            kf.update(&Measurement::full(&y)).unwrap();
+            k0.update(&Measurement::full(&y)).unwrap();
+            if k <= 20 {
+                // u = u₀: the same recursion as the offline filter.
+                off.predict(t, &u).unwrap();
+                let a = off.update(&Measurement::full(&y)).unwrap();
+                assert!((a.log_evidence - b.log_evidence).abs() < 1e-6);
+                let (ga, gb) = (off.belief(), lf.belief());
+                for i in 0..2 {
+                    worst = worst.max((ga.mean[i] - gb.mean[i]).abs());
+                }
+                for i in 0..4 {
+                    worst = worst.max((ga.cov[i] - gb.cov[i]).abs());
+                }
+            } else {
+                let (g, gk, g0) = (lf.belief(), kf.belief(), k0.belief());
+                gap = gap.max((g.mean[1] - gk.mean[1]).abs());
+                gap0 = gap0.max((g0.mean[1] - gk.mean[1]).abs());
+            }
+        }
+        assert!(worst < 1e-9, "live vs offline: {worst}");
+        // With u = 1.5 held, the calibrated tilt carries part of the
+        // control's drift toward the exact answer (the controlled Kalman
+        // filter). Measured: gap 0.072 vs 0.104 without any control — the
+        // tilt is a known weak point on strongly controlled states (issue 4
+        // note), so this asserts that it helps, not that it is accurate.
+        eprintln!("tilted live chain vs Kalman {gap:.4}, uncontrolled Kalman vs Kalman {gap0:.4}");
+        assert!(gap0 > 0.08, "control must matter: {gap0}");
+        assert!(
+            gap < 0.8 * gap0,
+            "live chain vs Kalman {gap} (uncontrolled {gap0})"
+        );
+    }
+
+    #[test]
+    fn remap_keeps_mass_on_kept_ids_and_reports_what_retired_states_held() {
+        let m = model();
+        let prior = Gaussian::diagonal(&[0.5, 0.0], &[0.4, 0.4]);
+        let mut c = chain(&m, 800, 4);
+        let delta = 0.01;
+        let mut lf = live(&m, &prior);
+        lf.offer(encode(&mut c, delta, meta(1, 7))).unwrap();
+        lf.advance(Duration::from_secs(1)).unwrap().unwrap();
+        let mut rng = crate::rng::stream(4, 0);
+        for k in 1..=5 {
+            lf.predict(k as f64 * 0.05, &[0.0]).unwrap();
+            lf.update(&Measurement::full(&[0.5, 0.1])).unwrap();
+        }
+        let before = lf.belief();
+        // v2: 200 more states (no retirement): nothing lost, belief barely
+        // moves (new states take their neighbours' density).
+        let mut t = vec![];
+        c.grow(&m, &Sampler::Uniform, 200, &mut rng, &mut t)
+            .unwrap();
+        lf.offer(encode(&mut c, delta, meta(2, 7))).unwrap();
+        let info = lf.advance(Duration::from_secs(1)).unwrap().unwrap();
+        assert!(!info.from_gaussian);
+        assert_eq!((info.version, info.states, info.mass_lost), (2, 1000, 0.0));
+        let after = lf.belief();
+        for i in 0..2 {
+            assert!(
+                (before.mean[i] - after.mean[i]).abs() < 0.05,
+                "{before:?} {after:?}"
+            );
+        }
+        // v3: retire every state with x₀ > 0.4; the lost mass is what they held.
+        let phi = lf.masses().to_vec();
+        let keep: Vec<bool> = (0..c.len()).map(|i| c.state(i)[0] <= 0.4).collect();
+        let expect: f64 = (0..c.len()).filter(|&i| !keep[i]).map(|i| phi[i]).sum();
+        assert!(expect > 0.05, "the test must retire real mass: {expect}");
+        let mut touched = vec![];
+        let mut r = crate::chain::retire::retire(&m, &mut c, &keep, &mut touched).unwrap();
+        lf.offer(encode(&mut r, delta, meta(3, 7))).unwrap();
+        let info = lf.advance(Duration::from_secs(1)).unwrap().unwrap();
+        assert!(
+            (info.mass_lost - expect).abs() < 1e-12,
+            "{} vs {expect}",
+            info.mass_lost
+        );
+        assert!((lf.masses().iter().sum::<f64>() - 1.0).abs() < 1e-9);
+        // A new lineage starts from the Gaussian belief.
+        let g = lf.belief();
+        let mut other = chain(&m, 600, 5);
+        lf.offer(encode(&mut other, delta, meta(1, 8))).unwrap();
+        let info = lf.advance(Duration::from_secs(1)).unwrap().unwrap();
+        assert!(info.from_gaussian);
+        let h = lf.belief();
+        assert!((g.mean[0] - h.mean[0]).abs() < 0.1, "{g:?} {h:?}");
+        assert_eq!(lf.versions(), 4);
+    }
+
+    #[test]
+    fn preparation_is_spread_over_calls_and_bad_snapshots_are_refused() {
+        let m = model();
+        let prior = Gaussian::diagonal(&[0.0, 0.0], &[0.5, 0.5]);
+        let mut lf = live(&m, &prior);
+        let mut c = chain(&m, 1200, 6);
+        let snap = encode(&mut c, 0.01, meta(1, 1));
+        // Before any snapshot the fallback (EKF) answers.
+        lf.predict(0.01, &[0.0]).unwrap();
+        lf.update(&Measurement::full(&[0.1, 0.1])).unwrap();
+        assert!(lf.active_info().is_none());
+        lf.offer(snap.clone()).unwrap();
+        let mut calls = 0;
+        loop {
+            calls += 1;
+            if lf.advance(Duration::ZERO).unwrap().is_some() {
+                break;
+            }
+        }
+        assert_eq!(calls, 1200usize.div_ceil(CHUNK));
+        assert_eq!(lf.active_info().map(|a| a.1), Some(1200));
+        let mut bad = snap.clone();
+        bad[0] = 0;
+        assert_eq!(lf.offer(bad), Err(SnapshotError::Magic));
+        let mut bad = snap;
+        let n = 1200;
+        // Corrupt the first incoming source index (after every f64 section
+        // and the ids/offsets/cols u32 sections).
+        let v = SnapshotView::parse(&bad).unwrap();
+        let off = (v.in_src.as_ptr() as usize - bad.as_ptr() as usize) / 8;
+        bad[off] = u64::MAX;
+        lf.offer(bad).unwrap();
+        assert!(matches!(
+            lf.advance(Duration::from_secs(1)),
+            Err(SnapshotError::Index(_))
+        ));
+        assert!(!lf.has_pending());
+        // Still filtering on the last good version.
+        assert_eq!(lf.active_info().map(|a| a.1), Some(n));
+        lf.predict(0.02, &[0.0]).unwrap();
+        lf.update(&Measurement::full(&[0.1, 0.1])).unwrap();
+    }
+}
