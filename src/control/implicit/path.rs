@@ -590,6 +590,22 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
         )
     }
 
+    /// Only the prefix gradient ∂F/∂e (O(1): the first K+1 steps); the
+    /// likelihood-ratio control estimate needs nothing else per sample.
+    pub fn prefix_gradient(&self, z: &[f64], ge: &mut [f64]) {
+        self.pass(
+            z,
+            Outputs {
+                g: None,
+                h: None,
+                ge: Some(ge),
+                cross: None,
+                exact: true,
+                last_step: self.setup.k + 1,
+            },
+        );
+    }
+
     /// Only the prefix derivatives ∂F/∂e and ∂²F/∂z∂e (O(1): just the
     /// first K+1 steps touch the prefix).
     pub fn prefix_derivatives(&self, z: &[f64], ge: &mut [f64], cross: &mut [f64]) {
@@ -642,6 +658,11 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
         let mut r = [0.0; MAX_STATE];
         let mut sr = [0.0; MAX_STATE];
         let mut a = [0.0; MAX_STATE * MAX_STATE]; // P (I + J_f Δt), b×m
+                                                  // Per-step scratch, hoisted (zeroing them every step showed in profiles).
+        let mut hr = [0.0; MAX_STATE * MAX_STATE];
+        let mut sa = [0.0; MAX_STATE * MAX_STATE];
+        let mut wv = [0.0; MAX_STATE];
+        let mut hsd = [0.0; 2 * MAX_STATE * MAX_W]; // Hs D, m2 × w
         let mut total = 0.0;
 
         self.state(z, 0, &mut s_prev);
@@ -669,7 +690,6 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
             total += act;
             // The action and the control-limit penalty both depend on s only
             // through r: sr = ∂/∂r, hr = ∂²/∂r².
-            let mut hr = [0.0; MAX_STATE * MAX_STATE];
             hr[..b * b].copy_from_slice(&st.s[..b * b]);
             total += st.limit_penalty(&r[..b], &mut sr[..b], need_h.then_some(&mut hr[..b * b]));
             // A = P (I + J_f Δt): rows roff..roff+b.
@@ -693,7 +713,6 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
             if need_h {
                 // (prev, prev) += Aᵀ S A; (prev, cur) −= Aᵀ S P; (cur, cur) += Pᵀ S P.
                 // sa = S A (b×m), then (prev, prev) += Aᵀ sa.
-                let mut sa = [0.0; MAX_STATE * MAX_STATE];
                 for c2 in 0..m {
                     for d1 in 0..b {
                         let mut v = 0.0;
@@ -725,7 +744,7 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
                 }
                 if out.exact {
                     // Σ_l (Sr)_l ∇²r_l = curvature of f0 at s_prev with w = −Δt Pᵀ S r.
-                    let mut wv = [0.0; MAX_STATE];
+                    wv[..m].fill(0.0);
                     for c in 0..b {
                         wv[roff + c] = -dt * sr[c];
                     }
@@ -794,11 +813,22 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
                 gw[c as usize] += v * gs[r as usize];
             }
             if need_h {
+                // Two stages, each a run of contiguous axpys: T = Hs D
+                // (column c of T += v · column r of Hs), then Hw = Dᵀ T.
+                hsd[..m2 * w].fill(0.0);
+                for &(r, c, v) in nz {
+                    let src = &hs[r as usize * m2..(r as usize + 1) * m2];
+                    let dst = &mut hsd[c as usize * m2..(c as usize + 1) * m2];
+                    for (d, x) in dst.iter_mut().zip(src) {
+                        *d += v * x;
+                    }
+                }
                 hwin[..w * w].fill(0.0);
-                for &(r1, c1, v1) in nz {
-                    let col = &hs[r1 as usize * m2..(r1 as usize + 1) * m2];
-                    for &(r2, c2, v2) in nz {
-                        hwin[c2 as usize + c1 as usize * w] += v1 * v2 * col[r2 as usize];
+                for c2 in 0..w {
+                    let tcol = &hsd[c2 * m2..(c2 + 1) * m2];
+                    let hcol = &mut hwin[c2 * w..(c2 + 1) * w];
+                    for &(r, c, v) in nz {
+                        hcol[c as usize] += v * tcol[r as usize];
                     }
                 }
             }
@@ -864,6 +894,11 @@ impl<M: ControlAffine + ?Sized, C: PathCost + ?Sized> Objective for PathFunction
 
     fn bandwidth(&self) -> usize {
         self.setup.bandwidth()
+    }
+
+    /// Only a gate makes F infinite; the derivative pass reports F otherwise.
+    fn has_barrier(&self) -> bool {
+        self.gate.is_some()
     }
 
     fn value(&self, z: &[f64]) -> f64 {
