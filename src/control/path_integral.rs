@@ -77,6 +77,23 @@ pub enum GradientConfig {
     Analytic,
     /// The paper's central differences with common random numbers.
     FiniteDifference,
+    /// The likelihood-ratio form −E_w[∂ₓF] at fixed samples (u Δt ≈
+    /// B⁻¹E_w[r₁], the first noise increment under the weights): no solve
+    /// per direction, a value pass per sample.
+    LikelihoodRatio,
+}
+
+/// How the previous plan is moved to the current time before it warm-starts
+/// the minimisation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WarmShift {
+    /// By the elapsed time in (fractional) path steps, interpolating the
+    /// plan between its grid points.
+    Interpolate,
+    /// By round(elapsed/Δt) whole steps (the earlier behaviour: with a
+    /// control period below Δt/2 the plan never moves).
+    WholeSteps,
 }
 
 /// Which implicit-sampling map.
@@ -113,6 +130,12 @@ pub struct PathIntegralConfig {
     /// controls the planned path implies (0: the paper's unconstrained F,
     /// only the final clamp). See `PathSetup::with_control_limit`.
     pub control_limit_weight: f64,
+    /// δ of the C² quadratic–cubic blend of that penalty (force units; 0:
+    /// the C¹ max(0, e)² kink). See `PathSetup::with_control_limit`.
+    pub control_limit_blend: f64,
+    /// Newton stops when ½gᵀH⁻¹g (the error of the minimum F to second
+    /// order) ≤ newton_tol · max(1, |F|).
+    pub newton_tol: f64,
     /// Seed of the sampler's random numbers.
     pub seed: u64,
     /// Per-control compute budget in µs (0: unlimited).
@@ -123,6 +146,11 @@ pub struct PathIntegralConfig {
     pub map: MapConfig,
     /// Newton iteration cap per minimisation.
     pub newton_max_iter: usize,
+    /// At the cap, use the iterate reached instead of failing (real-time
+    /// iteration: the warm start carries the refinement to the next call).
+    pub newton_accept_at_cap: bool,
+    /// How the previous plan is advanced to the current time.
+    pub warm_shift: WarmShift,
 }
 
 impl Default for PathIntegralConfig {
@@ -139,12 +167,16 @@ impl Default for PathIntegralConfig {
             control_cost: 0.1,
             u_max: 3.0,
             control_limit_weight: 10.0,
+            control_limit_blend: 0.0,
+            newton_tol: 1e-9,
             seed: 1,
             budget_us: 500.0,
             gradient: GradientConfig::Analytic,
             fd_step: 1e-4,
             map: MapConfig::Linear,
             newton_max_iter: 30,
+            newton_accept_at_cap: false,
+            warm_shift: WarmShift::Interpolate,
         }
     }
 }
@@ -201,16 +233,22 @@ impl PathIntegralConfig {
         if !(self.control_limit_weight >= 0.0 && self.control_limit_weight.is_finite()) {
             return Err(invalid("control_limit_weight", "must be ≥ 0 and finite"));
         }
+        if !(self.control_limit_blend >= 0.0 && self.control_limit_blend.is_finite()) {
+            return Err(invalid("control_limit_blend", "must be ≥ 0 and finite"));
+        }
+        if !(self.newton_tol > 0.0 && self.newton_tol < 1.0) {
+            return Err(invalid("newton_tol", "must be in (0, 1)"));
+        }
         if !(self.budget_us >= 0.0 && self.budget_us.is_finite()) {
             return Err(invalid("budget_us", "must be ≥ 0 (0: unlimited)"));
         }
         if !(self.fd_step > 0.0 && self.fd_step.is_finite()) {
             return Err(invalid("fd_step", "must be positive"));
         }
-        if self.gradient == GradientConfig::Analytic && self.map == MapConfig::Random {
+        if self.gradient != GradientConfig::FiniteDifference && self.map == MapConfig::Random {
             return Err(invalid(
                 "gradient",
-                "the analytic gradient needs map = \"linear\"",
+                "the analytic and likelihood-ratio gradients need map = \"linear\"",
             ));
         }
         if self.newton_max_iter == 0 {
@@ -232,12 +270,15 @@ impl PathIntegralConfig {
                 GradientConfig::FiniteDifference => {
                     GradientMethod::FiniteDifference { h: self.fd_step }
                 }
+                GradientConfig::LikelihoodRatio => GradientMethod::LikelihoodRatio,
             },
             gate_mode: GateMode::AllBasins,
             gate_sampling: GateSampling::Marginal,
             newton: NewtonOptions {
                 max_iter: self.newton_max_iter,
+                tol_decrement: self.newton_tol,
                 reuse_factor: true,
+                accept_at_cap: self.newton_accept_at_cap,
                 ..NewtonOptions::default()
             },
         }
@@ -389,7 +430,9 @@ impl<M: ControlAffine, C: PathCost> PathIntegralController<M, C> {
             r[i + i * p] = cfg.control_cost;
         }
         let setup = PathSetup::new(&model, &r[..p * p], cfg.dt)
-            .and_then(|s| s.with_control_limit(cfg.u_max, cfg.control_limit_weight))
+            .and_then(|s| {
+                s.with_control_limit(cfg.u_max, cfg.control_limit_weight, cfg.control_limit_blend)
+            })
             .map_err(|e| ControlError::Model(e.to_string()))?;
         let k = match cfg.belief {
             BeliefMode::Mean => 1,
@@ -575,13 +618,20 @@ impl<M: ControlAffine + 'static, C: PathCost + 'static> Controller
             u[..p].fill(0.0);
             return Ok(ControlInfo::default());
         }
-        // Warm start: shift by the whole steps elapsed, resize to n.
-        let shift = match self.last_t {
-            Some(t0) if t >= t0 => ((t - t0) / self.cfg.dt).round() as usize,
-            _ => 0,
+        // Warm start: advance the previous plan by the time elapsed (a
+        // fraction of a path step at a control period below Δt), resize to n.
+        let steps = match self.last_t {
+            Some(t0) if t >= t0 => {
+                let s = (t - t0) / self.cfg.dt;
+                match self.cfg.warm_shift {
+                    WarmShift::Interpolate => s,
+                    WarmShift::WholeSteps => s.round(),
+                }
+            }
+            _ => 0.0,
         };
         if self.sampler.warm_steps() > 0 {
-            self.sampler.shift_warm_start(shift, n);
+            self.sampler.advance_warm_start(steps, n);
         }
         let (k, ms) = self.ladder[self.level];
         self.initial_states(belief, k);

@@ -28,7 +28,9 @@ use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::belief::Gaussian;
 use crate::control::cost::{DiscBarrier, TrackingCost};
 use crate::control::mppi::{Mppi, MppiConfig};
-use crate::control::path_integral::{BeliefMode, PathIntegralConfig, PathIntegralController};
+use crate::control::path_integral::{
+    BeliefMode, GradientConfig, PathIntegralConfig, PathIntegralController, WarmShift,
+};
 use crate::control::waypoints::{RouteConfig, WaypointTracker};
 use crate::control::Controller;
 use crate::model::ship::{Ship, ShipParams};
@@ -91,6 +93,11 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
             "budget_us",
             "mppi_samples",
             "pi_limit_weight",
+            "pi_limit_blend",
+            "pi_newton_tol",
+            "pi_gradient",
+            "pi_warm",
+            "pi_newton_max_iter",
         ],
     )?;
     let runs = args.runs.unwrap_or(5);
@@ -108,6 +115,25 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
         "pi_limit_weight",
         PathIntegralConfig::default().control_limit_weight,
     )?;
+    let defaults = PathIntegralConfig::default();
+    let limit_blend: f64 = param(args, "pi_limit_blend", defaults.control_limit_blend)?;
+    let newton_tol: f64 = param(args, "pi_newton_tol", defaults.newton_tol)?;
+    let gradient_name: String = param(args, "pi_gradient", "analytic".to_string())?;
+    let gradient = match gradient_name.as_str() {
+        "analytic" => GradientConfig::Analytic,
+        "finite_difference" | "fd" => GradientConfig::FiniteDifference,
+        "likelihood_ratio" | "lr" => GradientConfig::LikelihoodRatio,
+        other => anyhow::bail!("pi_gradient={other}: analytic | fd | lr"),
+    };
+    // 0: the default cap, failing at it; k > 0: at most k iterations, the
+    // iterate reached is used (real-time iteration).
+    let rti: usize = param(args, "pi_newton_max_iter", 0)?;
+    let warm_name: String = param(args, "pi_warm", "interpolate".to_string())?;
+    let warm_shift = match warm_name.as_str() {
+        "interpolate" => WarmShift::Interpolate,
+        "whole_steps" => WarmShift::WholeSteps,
+        other => anyhow::bail!("pi_warm={other}: interpolate | whole_steps"),
+    };
     let mppi_samples: Vec<usize> = list_param(args, "mppi_samples", &[2048, 512])?;
     let dt = 0.01;
     let steps = (duration / dt).round() as usize;
@@ -138,6 +164,16 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
             budget_us,
             belief,
             control_limit_weight: limit_weight,
+            control_limit_blend: limit_blend,
+            newton_tol,
+            gradient,
+            warm_shift,
+            newton_max_iter: if rti > 0 {
+                rti
+            } else {
+                defaults.newton_max_iter
+            },
+            newton_accept_at_cap: rti > 0,
             ..PathIntegralConfig::default()
         };
         specs.push(Spec {
@@ -196,6 +232,11 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
     rep.param("pi_belief", pi_belief.as_str());
     rep.param("pi_budget_us", budget_us);
     rep.param("pi_limit_weight", limit_weight);
+    rep.param("pi_limit_blend", limit_blend);
+    rep.param("pi_newton_tol", newton_tol);
+    rep.param("pi_gradient", gradient_name.as_str());
+    rep.param("pi_warm", warm_name.as_str());
+    rep.param("pi_newton_max_iter", rti);
     rep.param(
         "waypoints",
         "(5,5) (-5,5) (-5,-5) (5,-5), reach 1.0, no cycle; start (3,0,0,0)",
@@ -207,6 +248,7 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
     for spec in &specs {
         let (mut costs, mut reached, mut times, mut fails) = (vec![], vec![], vec![], 0usize);
         let mut cpu = vec![];
+        let mut iters = vec![];
         let mut final_dist = vec![];
         for run in 0..runs {
             let mut ctl = (spec.make)(args.seed.wrapping_add(run as u64))?;
@@ -233,6 +275,9 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
                 let r = ctl.as_controller().compute(k as f64 * dt, &b, &mut u);
                 times.push(start.elapsed().as_secs_f64() * 1e6);
                 cpu.push(thread_cpu_us() - c0);
+                if let Ctl::Pi(c) = &ctl {
+                    iters.push(c.stats().newton_iterations as f64);
+                }
                 if r.is_err() {
                     fails += 1;
                     u = [0.0, 0.0];
@@ -266,6 +311,12 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
             .num("cpu_p50_us", cpu50)
             .num("cpu_p99_us", percentile(&cpu, 0.99))
             .int("failed_controls", fails as u64);
+        let row = if iters.is_empty() {
+            row
+        } else {
+            row.num("newton_iter_mean", mean_std(&iters).0)
+                .num("newton_iter_p99", percentile(&iters, 0.99))
+        };
         rows.push((spec.name.clone(), costs, (p50, cpu50), row));
     }
     let reference = rows

@@ -39,6 +39,12 @@ pub trait Objective {
     fn derivatives(&self, x: &[f64], g: &mut [f64], h: &mut SymBand) -> f64;
     /// F(x) and its gradient into `g` (no Hessian).
     fn gradient(&self, x: &[f64], g: &mut [f64]) -> f64;
+    /// Whether F can be +∞ where its derivative pass still reports a finite
+    /// value (a constraint only [`Objective::value`] checks): then the
+    /// minimiser checks the start with a value pass first.
+    fn has_barrier(&self) -> bool {
+        true
+    }
     /// The directional derivative ∇F(x)·d (the random map's dλ/dρ needs
     /// it); `scratch` has length ≥ N.
     fn directional(&self, x: &[f64], d: &[f64], scratch: &mut [f64]) -> f64 {
@@ -65,6 +71,15 @@ pub struct NewtonOptions {
     /// (exact for quadratic F; any positive-definite factor keeps the
     /// sampling weights exact).
     pub reuse_factor: bool,
+    /// Return the iterate reached after `max_iter` iterations instead of
+    /// failing (real-time iteration: a controller called every few ms keeps
+    /// refining the same, warm-started plan across calls, so a bounded
+    /// number of Newton steps per call suffices). The workspace then holds
+    /// the gradient and factor at that iterate, and `decrement` says how far
+    /// from the minimum it is. (Returning the stepped point with the previous
+    /// factor saves a Hessian pass but measured far worse on the ship: with
+    /// the control-limit penalty the Hessian changes with the active set.)
+    pub accept_at_cap: bool,
 }
 
 impl Default for NewtonOptions {
@@ -75,6 +90,7 @@ impl Default for NewtonOptions {
             armijo: 1e-4,
             max_backtrack: 40,
             reuse_factor: false,
+            accept_at_cap: false,
         }
     }
 }
@@ -144,6 +160,9 @@ impl NewtonWorkspace {
         let n = obj.dim();
         self.h.resize(n);
         let f = obj.derivatives(x, &mut self.g[..n], &mut self.h);
+        if !f.is_finite() {
+            return Err(NewtonError::InfeasibleStart);
+        }
         for i in 0..n {
             if self.pinned[i] {
                 self.g[i] = 0.0;
@@ -178,7 +197,7 @@ impl NewtonWorkspace {
         let n = obj.dim();
         debug_assert!(x.len() >= n && self.g.len() >= n);
         let x = &mut x[..n];
-        if !obj.value(x).is_finite() {
+        if obj.has_barrier() && !obj.value(x).is_finite() {
             return Err(NewtonError::InfeasibleStart);
         }
         for it in 0..=opts.max_iter {
@@ -200,22 +219,51 @@ impl NewtonWorkspace {
                 });
             }
             if it == opts.max_iter {
+                if opts.accept_at_cap {
+                    return Ok(NewtonResult {
+                        phi: f,
+                        iterations: it,
+                        shift: tau,
+                        decrement,
+                    });
+                }
                 break;
             }
             let mut alpha = 1.0;
             let mut accepted = false;
+            // With factor reuse the full step's value comes with its gradient
+            // (one pass instead of a value pass and a gradient pass): g at x
+            // is no longer needed once the slope is known.
+            let mut g_at_trial = false;
+            let mut f_new = f;
             for _ in 0..opts.max_backtrack {
                 for i in 0..n {
                     self.trial[i] = x[i] + alpha * d[i];
                 }
-                let ft = obj.value(&self.trial[..n]);
+                let ft = if opts.reuse_factor && alpha == 1.0 {
+                    g_at_trial = true;
+                    obj.gradient(&self.trial[..n], &mut self.g[..n])
+                } else {
+                    g_at_trial = false;
+                    obj.value(&self.trial[..n])
+                };
                 if ft.is_finite() && ft <= f + opts.armijo * alpha * slope {
                     accepted = true;
+                    f_new = ft;
                     break;
                 }
                 alpha *= 0.5;
             }
             if !accepted {
+                if g_at_trial || opts.reuse_factor {
+                    // self.g was overwritten at the full step: restore ∇F(x).
+                    obj.gradient(x, &mut self.g[..n]);
+                    for i in 0..n {
+                        if self.pinned[i] {
+                            self.g[i] = 0.0;
+                        }
+                    }
+                }
                 // No decrease representable in floating point: at a minimum
                 // to machine precision if the decrement is tiny relative to F.
                 if decrement <= 1e-9 * f.abs().max(1.0) {
@@ -230,7 +278,11 @@ impl NewtonWorkspace {
             }
             x.copy_from_slice(&self.trial[..n]);
             if opts.reuse_factor {
-                let f = obj.gradient(x, &mut self.g[..n]);
+                let f = if g_at_trial {
+                    f_new
+                } else {
+                    obj.gradient(x, &mut self.g[..n])
+                };
                 for i in 0..n {
                     if self.pinned[i] {
                         self.g[i] = 0.0;
@@ -294,6 +346,74 @@ mod tests {
 
     /// Rosenbrock: a curved valley with an indefinite Hessian away from the
     /// minimum; the safeguarded Newton must still reach (1, 1).
+    #[allow(clippy::type_complexity)]
+    fn rosenbrock(
+    ) -> DenseObjective<impl Fn(&[f64]) -> f64, impl Fn(&[f64], &mut [f64], &mut SymBand) -> f64>
+    {
+        DenseObjective {
+            n: 2,
+            value: |x: &[f64]| (1.0 - x[0]).powi(2) + 100.0 * (x[1] - x[0] * x[0]).powi(2),
+            derivatives: |x: &[f64], g: &mut [f64], h: &mut SymBand| {
+                let (a, b) = (x[0], x[1]);
+                g[0] = -2.0 * (1.0 - a) - 400.0 * a * (b - a * a);
+                g[1] = 200.0 * (b - a * a);
+                h.set(0, 0, 2.0 - 400.0 * (b - a * a) + 800.0 * a * a);
+                h.set(1, 0, -400.0 * a);
+                h.set(1, 1, 200.0);
+                (1.0 - a).powi(2) + 100.0 * (b - a * a).powi(2)
+            },
+        }
+    }
+
+    /// Real-time iteration: at the cap the iterate reached is returned (not
+    /// an error), F has decreased, and the workspace holds the gradient and
+    /// the factor of the Hessian at that iterate; without `accept_at_cap`
+    /// the same cap is an error. Repeated capped calls, each warm-started
+    /// from the last, reach the minimum.
+    #[test]
+    fn accept_at_cap_returns_the_iterate_with_its_derivatives() {
+        let obj = rosenbrock();
+        for reuse_factor in [false, true] {
+            let opts = NewtonOptions {
+                max_iter: 1,
+                reuse_factor,
+                accept_at_cap: true,
+                ..NewtonOptions::default()
+            };
+            let mut ws = NewtonWorkspace::new(2, 1);
+            let mut x = [-1.2, 1.0];
+            let f0 = obj.value(&x);
+            let r = ws.minimise(&obj, &mut x, &opts).unwrap();
+            assert_eq!(r.iterations, 1);
+            assert!(r.phi < f0 && (r.phi - obj.value(&x)).abs() < 1e-12);
+            assert!(r.decrement > opts.tol_decrement);
+            let (mut g, mut h) = ([0.0; 2], SymBand::new(2, 1));
+            obj.derivatives(&x, &mut g, &mut h);
+            assert_eq!(&ws.g[..2], &g[..]);
+            let mut hf = h.clone();
+            if r.shift > 0.0 {
+                hf.add_diagonal(r.shift);
+            }
+            hf.cholesky_in_place().unwrap();
+            for (i, j) in [(0, 0), (1, 0), (1, 1)] {
+                assert!((ws.l.get(i, j) - hf.get(i, j)).abs() < 1e-9);
+            }
+            let strict = NewtonOptions {
+                accept_at_cap: false,
+                ..opts
+            };
+            let mut y = [-1.2, 1.0];
+            assert_eq!(
+                ws.minimise(&obj, &mut y, &strict),
+                Err(NewtonError::MaxIter(1))
+            );
+            for _ in 0..60 {
+                ws.minimise(&obj, &mut x, &opts).unwrap();
+            }
+            assert!((x[0] - 1.0).abs() < 1e-6 && (x[1] - 1.0).abs() < 1e-6);
+        }
+    }
+
     #[test]
     fn minimises_rosenbrock_from_an_indefinite_start() {
         let obj = DenseObjective {

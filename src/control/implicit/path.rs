@@ -126,6 +126,8 @@ pub struct PathSetup {
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct ControlLimit {
     u_max: f64,
+    /// δ: width of the cubic blend (0: the C¹ kink max(0, e)²).
+    blend: f64,
     /// κΔt/γ: F units per (excess control)² per step.
     weight: f64,
     /// B⁻¹ (b×b): the implied control of an increment r is B⁻¹r/Δt.
@@ -229,18 +231,30 @@ impl PathSetup {
 
     /// Add a soft box limit |u_c| ≤ u_max on the controls implied by the
     /// path increments, u_i = B⁻¹ r_i/Δt (B = G on the noise-driven rows):
-    /// F gains Σ_i (κΔt/γ) Σ_c max(0, |u_{i,c}| − u_max)², a running cost
-    /// κ·excess² per unit time. This is not in paper 003 (which has no
-    /// limits): it approximates the input-constrained value function, whose
-    /// optimal control is the clamp of −R⁻¹Gᵀ∂ₓJ for diagonal R, so the
-    /// plan stops assuming forces the actuator cannot give. κ = 0 leaves F
-    /// as in eq. (15). Needs b = p (B square and invertible).
-    pub fn with_control_limit(mut self, u_max: f64, kappa: f64) -> Result<Self, AffineError> {
+    /// F gains Σ_i (κΔt/γ) Σ_c φ_δ(|u_{i,c}| − u_max), a running cost
+    /// κ·φ_δ(excess) per unit time, with the C² quadratic–cubic blend
+    ///
+    ///   φ_δ(e) = 0 (e ≤ 0),  e³/(3δ) (0 < e ≤ δ),  e² − δe + δ²/3 (e > δ)
+    ///
+    /// (φ' = e²/δ then 2e − δ; φ'' = 2e/δ then 2). δ = 0 gives the C¹
+    /// max(0, e)², whose Hessian jumps where a control reaches the limit:
+    /// Newton then cycles between active sets; the blend lets the Hessian
+    /// grow continuously. This is not in paper 003 (which has no limits):
+    /// it approximates the input-constrained value function, whose optimal
+    /// control is the clamp of −R⁻¹Gᵀ∂ₓJ for diagonal R, so the plan stops
+    /// assuming forces the actuator cannot give. κ = 0 leaves F as in
+    /// eq. (15). Needs b = p (B square and invertible).
+    pub fn with_control_limit(
+        mut self,
+        u_max: f64,
+        kappa: f64,
+        blend: f64,
+    ) -> Result<Self, AffineError> {
         if kappa <= 0.0 {
             self.limit = None;
             return Ok(self);
         }
-        if self.b != self.p || !(u_max > 0.0) {
+        if self.b != self.p || !(u_max > 0.0) || !(blend >= 0.0 && blend.is_finite()) {
             return Err(AffineError::ControlCost);
         }
         let (m, b, roff) = (self.m, self.b, self.roff);
@@ -248,6 +262,7 @@ impl PathSetup {
         let binv = bm.try_inverse().ok_or(AffineError::ControlCost)?;
         let mut l = ControlLimit {
             u_max,
+            blend,
             weight: kappa * self.dt / self.gamma,
             binv: [0.0; MAX_CONTROL * MAX_CONTROL],
         };
@@ -275,14 +290,28 @@ impl PathSetup {
             w *= inv_dt;
             let ex = w.abs() - l.u_max;
             if ex > 0.0 {
-                pen += l.weight * ex * ex;
-                // ∂/∂r_d = 2κ' ex sign(w) B⁻¹_{cd}/Δt; ∂²/∂r_d∂r_e = 2κ' B⁻¹_{cd}B⁻¹_{ce}/Δt².
-                let gw = 2.0 * l.weight * ex * w.signum() * inv_dt;
+                // φ_δ(ex), φ', φ''.
+                let (phi, d1, d2) = if ex < l.blend {
+                    (
+                        ex * ex * ex / (3.0 * l.blend),
+                        ex * ex / l.blend,
+                        2.0 * ex / l.blend,
+                    )
+                } else {
+                    (
+                        ex * ex - l.blend * ex + l.blend * l.blend / 3.0,
+                        2.0 * ex - l.blend,
+                        2.0,
+                    )
+                };
+                pen += l.weight * phi;
+                // ∂/∂r_d = κ' φ' sign(w) B⁻¹_{cd}/Δt; ∂²/∂r_d∂r_e = κ' φ'' B⁻¹_{cd}B⁻¹_{ce}/Δt².
+                let gw = l.weight * d1 * w.signum() * inv_dt;
                 for d in 0..b {
                     gr[d] += gw * l.binv[c + d * b];
                 }
                 if let Some(h) = hr.as_deref_mut() {
-                    let hw = 2.0 * l.weight * inv_dt * inv_dt;
+                    let hw = l.weight * d2 * inv_dt * inv_dt;
                     for d in 0..b {
                         for e in 0..b {
                             h[d + e * b] += hw * l.binv[c + d * b] * l.binv[c + e * b];
@@ -561,6 +590,22 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
         )
     }
 
+    /// Only the prefix gradient ∂F/∂e (O(1): the first K+1 steps); the
+    /// likelihood-ratio control estimate needs nothing else per sample.
+    pub fn prefix_gradient(&self, z: &[f64], ge: &mut [f64]) {
+        self.pass(
+            z,
+            Outputs {
+                g: None,
+                h: None,
+                ge: Some(ge),
+                cross: None,
+                exact: true,
+                last_step: self.setup.k + 1,
+            },
+        );
+    }
+
     /// Only the prefix derivatives ∂F/∂e and ∂²F/∂z∂e (O(1): just the
     /// first K+1 steps touch the prefix).
     pub fn prefix_derivatives(&self, z: &[f64], ge: &mut [f64], cross: &mut [f64]) {
@@ -613,6 +658,11 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
         let mut r = [0.0; MAX_STATE];
         let mut sr = [0.0; MAX_STATE];
         let mut a = [0.0; MAX_STATE * MAX_STATE]; // P (I + J_f Δt), b×m
+                                                  // Per-step scratch, hoisted (zeroing them every step showed in profiles).
+        let mut hr = [0.0; MAX_STATE * MAX_STATE];
+        let mut sa = [0.0; MAX_STATE * MAX_STATE];
+        let mut wv = [0.0; MAX_STATE];
+        let mut hsd = [0.0; 2 * MAX_STATE * MAX_W]; // Hs D, m2 × w
         let mut total = 0.0;
 
         self.state(z, 0, &mut s_prev);
@@ -640,7 +690,6 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
             total += act;
             // The action and the control-limit penalty both depend on s only
             // through r: sr = ∂/∂r, hr = ∂²/∂r².
-            let mut hr = [0.0; MAX_STATE * MAX_STATE];
             hr[..b * b].copy_from_slice(&st.s[..b * b]);
             total += st.limit_penalty(&r[..b], &mut sr[..b], need_h.then_some(&mut hr[..b * b]));
             // A = P (I + J_f Δt): rows roff..roff+b.
@@ -664,7 +713,6 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
             if need_h {
                 // (prev, prev) += Aᵀ S A; (prev, cur) −= Aᵀ S P; (cur, cur) += Pᵀ S P.
                 // sa = S A (b×m), then (prev, prev) += Aᵀ sa.
-                let mut sa = [0.0; MAX_STATE * MAX_STATE];
                 for c2 in 0..m {
                     for d1 in 0..b {
                         let mut v = 0.0;
@@ -696,7 +744,7 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
                 }
                 if out.exact {
                     // Σ_l (Sr)_l ∇²r_l = curvature of f0 at s_prev with w = −Δt Pᵀ S r.
-                    let mut wv = [0.0; MAX_STATE];
+                    wv[..m].fill(0.0);
                     for c in 0..b {
                         wv[roff + c] = -dt * sr[c];
                     }
@@ -765,11 +813,22 @@ impl<'a, M: ControlAffine + ?Sized, C: PathCost + ?Sized> PathFunctional<'a, M, 
                 gw[c as usize] += v * gs[r as usize];
             }
             if need_h {
+                // Two stages, each a run of contiguous axpys: T = Hs D
+                // (column c of T += v · column r of Hs), then Hw = Dᵀ T.
+                hsd[..m2 * w].fill(0.0);
+                for &(r, c, v) in nz {
+                    let src = &hs[r as usize * m2..(r as usize + 1) * m2];
+                    let dst = &mut hsd[c as usize * m2..(c as usize + 1) * m2];
+                    for (d, x) in dst.iter_mut().zip(src) {
+                        *d += v * x;
+                    }
+                }
                 hwin[..w * w].fill(0.0);
-                for &(r1, c1, v1) in nz {
-                    let col = &hs[r1 as usize * m2..(r1 as usize + 1) * m2];
-                    for &(r2, c2, v2) in nz {
-                        hwin[c2 as usize + c1 as usize * w] += v1 * v2 * col[r2 as usize];
+                for c2 in 0..w {
+                    let tcol = &hsd[c2 * m2..(c2 + 1) * m2];
+                    let hcol = &mut hwin[c2 * w..(c2 + 1) * w];
+                    for &(r, c, v) in nz {
+                        hcol[c as usize] += v * tcol[r as usize];
                     }
                 }
             }
@@ -835,6 +894,11 @@ impl<M: ControlAffine + ?Sized, C: PathCost + ?Sized> Objective for PathFunction
 
     fn bandwidth(&self) -> usize {
         self.setup.bandwidth()
+    }
+
+    /// Only a gate makes F infinite; the derivative pass reports F otherwise.
+    fn has_barrier(&self) -> bool {
+        self.gate.is_some()
     }
 
     fn value(&self, z: &[f64]) -> f64 {
@@ -1068,10 +1132,33 @@ mod tests {
         z: &[f64],
         limit: Option<(f64, f64)>,
     ) {
+        // The C¹ kink (δ = 0), a blend narrower than most excesses, and one
+        // wide enough that the cubic branch carries them.
+        if limit.is_some() {
+            for blend in [0.0, 0.5, 5.0] {
+                check_blend(model, cost, r, dt, x, n, z, limit, blend);
+            }
+        } else {
+            check_blend(model, cost, r, dt, x, n, z, None, 0.0);
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn check_blend<M: ControlAffine, C: PathCost>(
+        model: &M,
+        cost: &C,
+        r: &[f64],
+        dt: f64,
+        x: &[f64],
+        n: usize,
+        z: &[f64],
+        limit: Option<(f64, f64)>,
+        blend: f64,
+    ) {
         let mut setup = PathSetup::new(model, r, dt).unwrap();
         let plain = setup.clone();
         if let Some((u_max, kappa)) = limit {
-            setup = setup.with_control_limit(u_max, kappa).unwrap();
+            setup = setup.with_control_limit(u_max, kappa, blend).unwrap();
         }
         let f = PathFunctional::new(&setup, model, cost, x, n, None);
         if limit.is_some() {
