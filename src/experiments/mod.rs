@@ -8,6 +8,7 @@
 
 pub mod anytime;
 pub mod arm;
+pub mod chain_closed_loop;
 pub mod chain_util;
 pub mod convergence;
 pub mod decoding;
@@ -108,6 +109,11 @@ pub fn all() -> Vec<Experiment> {
             name: "anytime",
             about: "issue 4: the live chain grown by refine while the chain backend filters the ship — error per second vs the offline chain filter at the same size and the PF",
             run: anytime::run,
+        },
+        Experiment {
+            name: "chain-closed-loop",
+            about: "issue 4: the live chain filter vs the PF under strong recorded PD forces on the ship (closed-loop-like)",
+            run: chain_closed_loop::run,
         },
         Experiment {
             name: "ship-control",

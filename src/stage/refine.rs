@@ -117,6 +117,11 @@ pub struct Refiner {
     version: u64,
     touched: Vec<u32>,
     rec: Vec<u32>,
+    /// Drift of the belief mean that f(m, u₀) does not explain (the
+    /// control, mostly), estimated from beliefs ≥ 0.1 s apart, and the
+    /// last such belief (mean, time).
+    drive: [f64; MAX_STATE],
+    anchor: Option<([f64; MAX_STATE], f64)>,
     /// Insertions rejected by the chain (e.g. duplicate coordinates).
     pub failed_inserts: u64,
     /// States retired so far.
@@ -145,6 +150,8 @@ impl Refiner {
             version: 0,
             touched: Vec::new(),
             rec: Vec::new(),
+            drive: [0.0; MAX_STATE],
+            anchor: None,
             failed_inserts: 0,
             retired: 0,
         })
@@ -154,6 +161,40 @@ impl Refiner {
     pub fn set_belief(&mut self, g: &Gaussian) {
         if g.dim == self.belief.dim && g.is_finite() {
             self.belief = *g;
+        }
+    }
+
+    /// [`Self::set_belief`] for a belief valid at `t` seconds: also
+    /// estimates where the belief is going (the mean's drift that the
+    /// uncontrolled model does not explain, i.e. the control's effect),
+    /// which [`Self::draw`] adds when it carries the mean ahead.
+    pub fn set_belief_at(&mut self, g: &Gaussian, t: f64) {
+        if !(g.dim == self.belief.dim && g.is_finite() && t.is_finite()) {
+            return;
+        }
+        self.belief = *g;
+        let d = g.dim;
+        match self.anchor {
+            Some((m0, t0)) if t - t0 >= 0.1 => {
+                let nu = self.model.dims().control;
+                let mut mid = [0.0; MAX_STATE];
+                for i in 0..d {
+                    mid[i] = 0.5 * (m0[i] + g.mean[i]);
+                }
+                let mut f = [0.0; MAX_STATE];
+                self.model
+                    .drift(&mid[..d], &[0.0; MAX_CONTROL][..nu], &mut f[..d]);
+                for i in 0..d {
+                    let c = (g.mean[i] - m0[i]) / (t - t0) - f[i];
+                    if c.is_finite() {
+                        // Smoothed: the belief mean jitters with every update.
+                        self.drive[i] = 0.5 * self.drive[i] + 0.5 * c;
+                    }
+                }
+                self.anchor = Some((g.mean, t));
+            }
+            Some((_, t0)) if t >= t0 => {}
+            _ => self.anchor = Some((g.mean, t)),
         }
     }
 
@@ -194,7 +235,9 @@ impl Refiner {
         )
     }
 
-    /// A new state: around the belief mean propagated for τ ~ U[0, horizon].
+    /// A new state: around the belief mean propagated for τ ~ U[0, horizon]
+    /// by the uncontrolled drift plus the estimated drive (where the belief
+    /// is going under the current control).
     fn draw(&mut self, x: &mut [f64]) {
         let d = self.belief.dim;
         let h = self.cfg.refine.horizon_s;
@@ -212,7 +255,7 @@ impl Refiner {
         for _ in 0..steps {
             self.model.drift(&m[..d], &u[..nu], &mut f[..d]);
             for i in 0..d {
-                m[i] += f[i] * tau / steps as f64;
+                m[i] += (f[i] + self.drive[i]) * tau / steps as f64;
             }
         }
         self.model.bounds().project(&mut m[..d]);
@@ -376,7 +419,7 @@ pub fn run(
                 if let Some(b) = latest {
                     m.dropped += skipped + seq.observe(b.header.seq);
                     m.processed += 1;
-                    refiner.set_belief(&b.gaussian());
+                    refiner.set_belief_at(&b.gaussian(), b.header.t_valid_ns as f64 * 1e-9);
                 }
             }
             let now = clock.now_ns();
