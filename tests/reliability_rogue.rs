@@ -132,11 +132,14 @@ fn run(backend: &str) {
     assert!(beliefs.receive().unwrap().is_none());
     // The filter accounted for each of them before stopping.
     let deadline = Instant::now() + PATIENCE;
-    let mut last = None;
-    while last.is_none_or(|s: &StageStats| s.processed + s.rejected < good + rogue) {
+    let mut last: Option<StageStats> = None;
+    while last
+        .as_ref()
+        .is_none_or(|s| s.processed + s.rejected < good + rogue)
+    {
         assert!(Instant::now() < deadline, "{last:?}");
         while let Some(s) = stats.receive().unwrap() {
-            last = Some(*s);
+            last = Some(s);
         }
         std::thread::sleep(Duration::from_millis(5));
     }
@@ -171,7 +174,7 @@ fn the_guard_bounds_both_sides() {
     assert!(!time_out_of_range(now, now, ahead, true));
     assert!(!time_out_of_range(now + ahead, now, ahead, false));
     assert!(time_out_of_range(now + ahead + 1, now, ahead, false));
-    assert!(time_out_of_range(u64::MAX, u64::MAX - 1, ahead, false));
+    assert!(time_out_of_range(u64::MAX, now, ahead, false));
     assert!(time_out_of_range(0, now, ahead, false));
     // Old samples: only the time origin is bounded (later ones are checked
     // against the filter's own time: time_backwards).
