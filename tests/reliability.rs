@@ -462,7 +462,7 @@ fn a_killed_refine_resumes_its_chain_and_the_filter_keeps_its_belief() {
     }
     drop(sub);
     drop(bus);
-    let before = seen.iter().filter(|s| s.t_pub_ns < t_kill).last().unwrap();
+    let before = seen.iter().rfind(|s| s.t_pub_ns < t_kill).unwrap();
     let after = seen.iter().find(|s| s.t_pub_ns > t_kill).unwrap();
     // Same chain: its lineage, newer versions, the old states' ids kept
     // (bar the few retired since).

@@ -66,7 +66,7 @@ pub fn encode(next_id: u32, snapshot: &[u64], out: &mut Vec<u8>) {
 
 /// Decode a checkpoint: (next id, snapshot words).
 pub fn decode(bytes: &[u8]) -> Result<(u32, Vec<u64>), CheckpointError> {
-    if bytes.len() % 8 != 0 || bytes.len() < HEADER * 8 {
+    if !bytes.len().is_multiple_of(8) || bytes.len() < HEADER * 8 {
         return Err(CheckpointError::Format("truncated"));
     }
     let mut words = bytes
