@@ -115,7 +115,26 @@ impl Run {
         while let Ok(l) = self.lines.recv_timeout(Duration::from_secs(5)) {
             self.log.push(l);
         }
-        (status, self.log)
+        (status, std::mem::take(&mut self.log))
+    }
+
+    /// Take the lines that arrived so far into the log (no waiting).
+    fn catch_up(&mut self) {
+        while let Ok(l) = self.lines.try_recv() {
+            self.log.push(l);
+        }
+    }
+}
+
+/// A failed assertion must not leave the launcher (and its stages and
+/// shared memory) running: stop it as Ctrl-C would.
+impl Drop for Run {
+    fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(None)) {
+            // SAFETY: signalling our own child.
+            unsafe { libc::kill(self.child.id() as i32, libc::SIGINT) };
+            let _ = self.child.wait();
+        }
     }
 }
 
@@ -355,4 +374,145 @@ fn hundred_kill_restart_cycles_leave_the_shared_memory_file_count_unchanged() {
     assert!(shm_files(&prefix).is_empty());
     let r = read_report(&report);
     assert_eq!(r["supervisor"]["restarts"], 100);
+}
+
+/// A chain snapshot received by the test (copied out of shared memory).
+struct Snap {
+    lineage: u64,
+    version: u64,
+    t_pub_ns: u64,
+    words: Vec<u64>,
+}
+
+#[test]
+fn a_killed_refine_resumes_its_chain_and_the_filter_keeps_its_belief() {
+    use beliefbus::chain::snapshot::SnapshotView;
+    use beliefbus::filter::live_chain::LiveChainFilter;
+    use beliefbus::model::SdeModel;
+    use beliefbus::stage::refine::{chain_qos, CHAIN_CHANNEL};
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let report = tmp("refine-resume.json");
+    let sets = ["filter.backend=\"chain\"", "control.backend=\"none\""];
+    let mut run = Run::start(&[
+        "run",
+        "configs/default.toml",
+        "--duration",
+        "0",
+        "--quiet",
+        "--report",
+        report.to_str().unwrap(),
+        "--set",
+        sets[0],
+        "--set",
+        sets[1],
+    ]);
+    let prefix = run.prefix();
+    run.expect("supervisor: started refine ");
+    run.expect("supervisor: started plant ");
+    let mut all: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    all.push(format!("run.prefix=\"{prefix}\""));
+    let cfg =
+        beliefbus::pipeline::config::load(&root().join("configs/default.toml"), &all).unwrap();
+    let dim = cfg.model().unwrap().dims().state;
+    let bus = beliefbus::ipc::Bus::open(&cfg.bus(), "watcher").unwrap();
+    let sub = bus
+        .slice_subscriber::<u64>(CHAIN_CHANNEL, &chain_qos(&cfg, dim), false)
+        .unwrap();
+    let mut seen: Vec<Snap> = Vec::new();
+    let poll = |seen: &mut Vec<Snap>| {
+        if let Some(s) = sub.receive_sample().unwrap() {
+            let words = s.as_ref().to_vec();
+            let v = SnapshotView::parse(&words).unwrap();
+            seen.push(Snap {
+                lineage: v.lineage,
+                version: v.version,
+                t_pub_ns: v.t_pub_ns,
+                words,
+            });
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    // A few versions of the first refine (it has been growing for a while).
+    let deadline = Instant::now() + PATIENCE;
+    while seen.len() < 4 {
+        assert!(Instant::now() < deadline, "no chain snapshots");
+        poll(&mut seen);
+    }
+    // The refine running now (under a loaded machine the supervisor may
+    // already have restarted a slow first one for a missed heartbeat).
+    run.catch_up();
+    let refine_pid = run
+        .log
+        .iter()
+        .rev()
+        .find(|l| l.contains("started refine ") || l.contains("restarted refine "))
+        .map(|l| Run::pid_of(l))
+        .unwrap();
+    let t_kill = beliefbus::rt::clock::now_ns();
+    kill(refine_pid, libc::SIGKILL);
+    run.expect(&format!(
+        "supervisor: refine (pid {refine_pid}) died (signal 9)"
+    ));
+    run.expect("supervisor: restarted refine ");
+    run.expect("refine: resumed chain lineage");
+    let deadline = Instant::now() + PATIENCE;
+    while !seen.iter().any(|s| s.t_pub_ns > t_kill) {
+        assert!(Instant::now() < deadline, "no snapshot after the restart");
+        poll(&mut seen);
+    }
+    drop(sub);
+    drop(bus);
+    let before = seen.iter().rfind(|s| s.t_pub_ns < t_kill).unwrap();
+    let after = seen.iter().find(|s| s.t_pub_ns > t_kill).unwrap();
+    // Same chain: its lineage, newer versions, the old states' ids kept
+    // (bar the few retired since).
+    assert_eq!(after.lineage, before.lineage);
+    assert!(
+        after.version > before.version,
+        "{} after {}",
+        after.version,
+        before.version
+    );
+    let (vb, va) = (
+        SnapshotView::parse(&before.words).unwrap(),
+        SnapshotView::parse(&after.words).unwrap(),
+    );
+    let kept = vb
+        .ids
+        .iter()
+        .filter(|i| va.ids.binary_search(i).is_ok())
+        .count();
+    assert!(kept * 2 > vb.len(), "{kept} of {} ids kept", vb.len());
+    // The filter's swap across the restart is a remap by id, not a restart
+    // from the Gaussian summary: the stage's LiveChainFilter, fed the same
+    // two versions.
+    let model = cfg.model().unwrap();
+    let prior = beliefbus::stage::filter::prior(&cfg);
+    let fallback = beliefbus::stage::filter::make_filter(&cfg, 0.0).unwrap();
+    let mut f: LiveChainFilter<_, Vec<u64>> =
+        LiveChainFilter::new(model, fallback, cfg.refine.max_states, &prior, 0.0);
+    let mut swap = |words: &Vec<u64>| {
+        f.offer(words.clone()).unwrap();
+        loop {
+            if let Some(info) = f.advance(Duration::from_secs(1)).unwrap() {
+                return info;
+            }
+        }
+    };
+    assert!(swap(&before.words).from_gaussian);
+    let info = swap(&after.words);
+    assert!(!info.from_gaussian, "{info:?}");
+    assert!(info.mass_lost < 0.5, "{info:?}");
+
+    let (status, log) = run.interrupt_and_wait();
+    assert!(status.success(), "{status:?}\n{}", log.join("\n"));
+    let r = read_report(&report);
+    assert!(r["stages"]["refine"]["restarts"].as_u64().unwrap() >= 1);
+    assert_eq!(r["stages"]["filter"]["rejected_by_reason"]["snapshot"], 0);
+    // Nothing left behind: the checkpoint (the run's state directory) and
+    // the shared memory.
+    let state = std::env::temp_dir().join(format!("{prefix}state"));
+    assert!(!state.exists(), "{} left behind", state.display());
+    assert!(shm_files(&prefix).is_empty(), "{:?}", shm_files(&prefix));
+    assert!(beliefbus::ipc::cleanup::resources(&prefix).is_empty());
 }

@@ -24,7 +24,10 @@ use beliefbus::stage::{run_stage, StageIdentity};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
+
+/// Liveness guard only (never a timing assertion).
+const PATIENCE: Duration = Duration::from_secs(300);
 
 const PARTICLES: usize = 4000;
 const OBS: u64 = 4000;
@@ -143,14 +146,26 @@ fn overload(max_age_frac: f64, step: u64) -> Outcome {
         }
     }
     let rss_end = rss_kb();
-    // Let the filter finish what is queued, then stop it.
-    let mut quiet = 0;
-    while quiet < 20 {
-        let n = waits.len();
-        std::thread::sleep(Duration::from_nanos(step * 5).max(Duration::from_millis(5)));
+    // Let the filter finish what is queued, then stop it: wait until its
+    // reports account for every observation published (the newest one is
+    // never skipped nor overwritten, so it is always filtered and every gap
+    // before it counted). A condition, not a fixed quiet time: under CPU
+    // contention the filter may not run for a long while. PATIENCE only
+    // keeps a broken build from hanging.
+    let deadline = Instant::now() + PATIENCE;
+    let mut accounted = 0;
+    while accounted < OBS {
+        assert!(
+            Instant::now() < deadline,
+            "the filter accounted for {accounted} of {OBS} observations"
+        );
+        std::thread::sleep(Duration::from_millis(5));
         drain(&mut waits);
-        quiet = if waits.len() == n { quiet + 1 } else { 0 };
+        while let Some(s) = stats.receive().unwrap() {
+            accounted = accounted.max(s.processed + s.dropped);
+        }
     }
+    drain(&mut waits);
     stop.store(true, Ordering::Relaxed);
     let final_stats = filter.join().unwrap();
     drop((obs, beliefs, stats, bus));

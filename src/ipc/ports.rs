@@ -260,6 +260,11 @@ pub struct Subscriber<M: Message> {
     subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, M, ()>,
     pub(super) listener: Option<Listener<ipc::Service>>,
     service: String,
+    /// One message taken off the queue by a spinning loop's poll
+    /// ([`Self::poll`]), handed out first by the next receive: the spin
+    /// path scans the queue once per message, as a bare `receive` loop does,
+    /// instead of `has_samples` and then `receive`.
+    stash: std::cell::Cell<Option<M>>,
 }
 
 impl<M: Message> Debug for Subscriber<M> {
@@ -304,6 +309,7 @@ impl<M: Message> Subscriber<M> {
             subscriber,
             listener,
             service: name.to_string(),
+            stash: std::cell::Cell::new(None),
         })
     }
 
@@ -316,6 +322,9 @@ impl<M: Message> Subscriber<M> {
 
     /// The oldest unread message, copied out.
     pub fn receive(&self) -> Result<Option<M>, IpcError> {
+        if let Some(m) = self.stash.take() {
+            return Ok(Some(m));
+        }
         match self.subscriber.receive() {
             Ok(Some(s)) => Ok(Some(*s.payload())),
             Ok(None) => Ok(None),
@@ -325,6 +334,9 @@ impl<M: Message> Subscriber<M> {
 
     /// Read the oldest unread message in place (no copy) with `f`.
     pub fn receive_with<R>(&self, f: impl FnOnce(&M) -> R) -> Result<Option<R>, IpcError> {
+        if let Some(m) = self.stash.take() {
+            return Ok(Some(f(&m)));
+        }
         match self.subscriber.receive() {
             Ok(Some(s)) => Ok(Some(f(s.payload()))),
             Ok(None) => Ok(None),
@@ -348,7 +360,32 @@ impl<M: Message> Subscriber<M> {
 
     /// Whether a message is waiting.
     pub fn has_data(&self) -> bool {
-        self.subscriber.has_samples().unwrap_or(false)
+        self.stash_full() || self.subscriber.has_samples().unwrap_or(false)
+    }
+
+    fn stash_full(&self) -> bool {
+        let m = self.stash.take();
+        let full = m.is_some();
+        self.stash.set(m);
+        full
+    }
+
+    /// The spin path's test for data: take the oldest message into the
+    /// one-slot stash (one queue scan; the next receive returns it). True
+    /// when a message is stashed — or when receiving failed, so that the
+    /// loop body runs and its own receive reports the error.
+    pub fn poll(&self) -> bool {
+        if self.stash_full() {
+            return true;
+        }
+        match self.subscriber.receive() {
+            Ok(Some(s)) => {
+                self.stash.set(Some(*s.payload()));
+                true
+            }
+            Ok(None) => false,
+            Err(_) => true,
+        }
     }
 
     /// Connect to publishers that appeared since the last receive, so their
@@ -370,5 +407,39 @@ impl<M: Message> Subscriber<M> {
     /// The service name.
     pub fn service(&self) -> &str {
         &self.service
+    }
+}
+
+#[cfg(test)]
+mod stash_tests {
+    use crate::ipc::{cleanup, Bus, BusConfig, Observation};
+
+    #[test]
+    fn a_polled_message_is_received_first_and_counted_as_waiting() {
+        let cfg = BusConfig {
+            prefix: cleanup::run_prefix(),
+            instance: "test".into(),
+        };
+        let bus = Bus::open(&cfg, "t").unwrap();
+        let mut p = bus.publisher::<Observation>().unwrap();
+        let s = bus.subscriber::<Observation>().unwrap();
+        assert!(!s.poll() && !s.has_data());
+        for i in 0..3u64 {
+            let mut o = Observation::default();
+            o.header.seq = i;
+            p.publish(&o).unwrap();
+        }
+        // Poll stashes the oldest; polling again keeps it (no second take).
+        assert!(s.poll() && s.poll() && s.has_data());
+        assert_eq!(s.receive_with(|o| o.header.seq).unwrap(), Some(0));
+        assert!(s.poll());
+        // The stashed one is part of `latest`: newest returned, the rest
+        // counted as skipped.
+        let (last, skipped) = s.latest().unwrap();
+        assert_eq!((last.map(|o| o.header.seq), skipped), (Some(2), 1));
+        assert!(!s.poll() && !s.has_data());
+        assert_eq!(s.receive().unwrap(), None);
+        drop((p, s, bus));
+        cleanup::remove_prefix(&cfg.prefix).unwrap();
     }
 }

@@ -37,7 +37,7 @@ use super::monitor::Monitor;
 use super::report::{ReportInput, StageEnd};
 use super::stage_main::BUILD_ID;
 use super::supervisor::{Chaos, Death, Decision, GiveUpReason, RestartState};
-use super::supervisor_resume::{Resume, ResumeBelief, ResumeControl, ResumeTruth};
+use super::supervisor_resume::{Resume, ResumeBelief, ResumeControl, ResumeTruth, StateDir};
 use super::supervisor_timeline::{Sample, Timeline};
 use super::PipelineConfig;
 use crate::ipc::{self, cleanup, Bus, BusConfig, Hop, StageKind};
@@ -193,8 +193,17 @@ fn spawn(
     opts: &RunOptions,
     prefix: &str,
     notes: &mut Vec<String>,
+    state_dir: &Path,
 ) -> Result<Stage> {
-    let child = spawn_child(kind, opts, prefix, notes, None)?;
+    // A first start gets the run's state directory too (refine checkpoints
+    // its chain there from the start; see `supervisor_resume`).
+    let first = Resume {
+        state_dir: Some(state_dir.to_path_buf()),
+        ..Resume::default()
+    };
+    let path = state_dir.join(format!("{}.resume.json", kind.name()));
+    first.save(&path)?;
+    let child = spawn_child(kind, opts, prefix, notes, Some(&path))?;
     eprintln!("supervisor: started {} (pid {})", kind.name(), child.id());
     Ok(Stage {
         kind,
@@ -404,9 +413,10 @@ fn supervise(
     }
     let mut notes = Vec::new();
     let mut stages: Vec<Stage> = Vec::new();
-    let state_dir = std::env::temp_dir().join(format!("{prefix}state"));
-    std::fs::create_dir_all(&state_dir)
-        .with_context(|| format!("cannot create {}", state_dir.display()))?;
+    let state_path = std::env::temp_dir().join(format!("{prefix}state"));
+    let state = StateDir::create(state_path.clone())
+        .with_context(|| format!("cannot create {}", state_path.display()))?;
+    let state_dir = state.path().to_path_buf();
     let mut sup = Supervision {
         timeline: Timeline::create(opts.timeline.as_deref())
             .with_context(|| "cannot create the timeline file".to_string())?,
@@ -423,7 +433,7 @@ fn supervise(
     let outcome = drive(&mut ctx, stop, &mut mon, &mut stages);
     shutdown(&mut stages, &mut mon);
     let _ = mon.poll();
-    let _ = std::fs::remove_dir_all(&state_dir);
+    drop(state);
     let input = ReportInput {
         scenario: cfg.run.scenario.name().into(),
         duration_s: cfg.run.duration_s,
@@ -673,7 +683,7 @@ fn drive(
     let (cfg, opts, prefix) = (ctx.cfg, ctx.opts, ctx.prefix);
     // Start everything but the plant, wait for their first reports.
     for &kind in &START_ORDER[..4] {
-        stages.push(spawn(kind, opts, prefix, ctx.notes)?);
+        stages.push(spawn(kind, opts, prefix, ctx.notes, ctx.state_dir)?);
     }
     let deadline = Instant::now() + START_TIMEOUT;
     loop {
@@ -704,7 +714,13 @@ fn drive(
     // lost.
     std::thread::sleep(3 * ipc::STOP_POLL);
     if opts.sensor == SensorSource::Plant {
-        stages.push(spawn(StageKind::Plant, opts, prefix, ctx.notes)?);
+        stages.push(spawn(
+            StageKind::Plant,
+            opts,
+            prefix,
+            ctx.notes,
+            ctx.state_dir,
+        )?);
     } else {
         eprintln!(
             "pipeline up; waiting for sensor samples on {} (prefix {prefix})",

@@ -166,6 +166,29 @@ impl Resume {
     }
 }
 
+/// The run's state directory (resume files, refine's chain checkpoint):
+/// removed with everything in it when dropped, so no run — ending normally
+/// or on an early error — leaves it behind.
+pub struct StateDir(PathBuf);
+
+impl StateDir {
+    /// Create `path` (and its parents).
+    pub fn create(path: PathBuf) -> std::io::Result<Self> {
+        std::fs::create_dir_all(&path)?;
+        Ok(Self(path))
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for StateDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 fn atomic_write(path: &Path, bytes: &[u8]) -> Result<(), ResumeError> {
     let tmp = path.with_extension("tmp");
     let err = |e: std::io::Error| ResumeError::Write {

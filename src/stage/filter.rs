@@ -51,17 +51,21 @@ pub enum Reason {
     Numerical = 4,
     /// A chain snapshot that failed validation (chain backend).
     Snapshot = 5,
+    /// A measurement time far off the stage's clock (a rogue publisher on
+    /// the internal channel; see [`time_out_of_range`]).
+    TimeRange = 6,
 }
 
 impl Reason {
     /// Every reason, in index order.
-    pub const ALL: [Reason; 6] = [
+    pub const ALL: [Reason; 7] = [
         Reason::TimeBackwards,
         Reason::Dimension,
         Reason::NonFinite,
         Reason::Degenerate,
         Reason::Numerical,
         Reason::Snapshot,
+        Reason::TimeRange,
     ];
 
     /// Report name.
@@ -73,6 +77,7 @@ impl Reason {
             Reason::Degenerate => "degenerate",
             Reason::Numerical => "numerical",
             Reason::Snapshot => "snapshot",
+            Reason::TimeRange => "time_out_of_range",
         }
     }
 
@@ -85,6 +90,26 @@ impl Reason {
             FilterError::Numerical(_) => Reason::Numerical,
         }
     }
+}
+
+/// How far before the stage's clock the first observation (the filter's
+/// time origin) may have been measured.
+pub const MAX_EPOCH_AGE_NS: u64 = 60_000_000_000;
+
+/// Whether an observation's measurement time `t_ns` is absurd at `now_ns`
+/// (the guard in front of `predict`): unset (0), more than `ahead_ns` in
+/// the future — the window ingest enforces on sensors (`ingest.max_age_s`)
+/// — or, for the observation that would fix the time origin
+/// (`sets_epoch`), more than [`MAX_EPOCH_AGE_NS`] in the past. Without it
+/// one rogue sample on the internal channel could make the filter predict
+/// over years (a stall: the work grows with the horizon) or, as an origin,
+/// turn every later observation into such a prediction. Within the window a
+/// sample ahead of the clock can only hold the next ones back as
+/// `time_backwards` for at most `ahead_ns`.
+pub fn time_out_of_range(t_ns: u64, now_ns: u64, ahead_ns: u64, sets_epoch: bool) -> bool {
+    t_ns == 0
+        || t_ns > now_ns.saturating_add(ahead_ns)
+        || (sets_epoch && t_ns.saturating_add(MAX_EPOCH_AGE_NS) < now_ns)
 }
 
 /// The ports of the filter stage.
@@ -288,6 +313,7 @@ pub fn run_with(
     let mut out = Belief::default();
     let mut out_seq = resumed.as_ref().map(|(b, _)| b.seq + 1).unwrap_or(0);
     let max_age_ns = (cfg.filter.max_obs_age_us * 1e3) as u64;
+    let ahead_ns = (cfg.ingest.max_age_s * 1e9) as u64;
     let mut err = None;
     ports.stats.publish(&m, clock.now_ns(), false)?;
     let tick = Duration::from_secs_f64(cfg.run.stats_period_s.min(0.1));
@@ -315,6 +341,10 @@ pub fn run_with(
                         && obs_sub.has_data()
                     {
                         m.dropped += 1; // stale, and a fresher one waits
+                        continue;
+                    }
+                    if time_out_of_range(o.header.t_valid_ns, t_in, ahead_ns, epoch.is_none()) {
+                        m.reject(Reason::TimeRange as usize);
                         continue;
                     }
                     let epoch_ns = *epoch.get_or_insert(o.header.t_valid_ns);

@@ -342,9 +342,11 @@ pub fn run_stage_with(
             let ports = control::ControlPorts::open(&b, id, cfg)?;
             control::run_with(ports, cfg, clock, stop, resume.control.as_ref())
         }
-        // Refine's restart hook: `resume.state_dir` / `Resume::read_checkpoint`
-        // (its chain snapshot, issue 4).
-        StageKind::Refine => refine::run(refine::RefinePorts::open(&b, id, cfg)?, cfg, clock, stop),
+        // Refine checkpoints its chain snapshots and resumes from the last.
+        StageKind::Refine => {
+            let ports = refine::RefinePorts::open(&b, id, cfg)?;
+            refine::run_with(ports, cfg, clock, stop, resume)
+        }
         StageKind::Plant => {
             let ports = plant::PlantPorts::open(&b, id, cfg)?;
             plant::run_resumed(ports, cfg, clock, stop, None, resume)

@@ -43,6 +43,7 @@ use crate::ipc::{
     run_loop, Belief, Bus, Qos, SlicePublisher, SliceQos, StageKind, StageStats, Subscriber, Wake,
 };
 use crate::model::SdeModel;
+use crate::pipeline::supervisor_resume::Resume;
 use crate::pipeline::{scenario::AnyModel, PipelineConfig};
 use crate::rng::SimRng;
 use crate::rt::Clock;
@@ -50,6 +51,9 @@ use crate::{MAX_CONTROL, MAX_STATE};
 use rand::RngExt;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
+
+#[path = "refine_resume.rs"]
+pub mod resume;
 
 /// The slice channel of chain snapshots.
 pub const CHAIN_CHANNEL: &str = "chain";
@@ -385,19 +389,33 @@ impl Refiner {
 
 /// Run refine until `stop`; returns its final stats.
 pub fn run(
+    ports: RefinePorts,
+    cfg: &PipelineConfig,
+    clock: &dyn Clock,
+    stop: &AtomicBool,
+) -> Result<StageStats, StageError> {
+    run_with(ports, cfg, clock, stop, &Resume::default())
+}
+
+/// [`run`] under a supervisor: checkpoints each published snapshot into the
+/// run's state directory and, after a restart, resumes from the last one
+/// (see [`resume`]).
+pub fn run_with(
     mut ports: RefinePorts,
     cfg: &PipelineConfig,
     clock: &dyn Clock,
     stop: &AtomicBool,
+    restart: &Resume,
 ) -> Result<StageStats, StageError> {
     let rt = cfg.stages.get(StageKind::Refine);
     let mut m = Metrics::new(rt.budget_ns(), &[], (cfg.run.warmup_s * 1e9) as u64);
     let mut seq = SeqTracker::default();
     let mut err = None;
     ports.stats.publish(&m, clock.now_ns(), false)?;
-    // A lineage per refine process: a restarted refine starts a new id space.
-    let lineage = crate::rng::splitmix64(clock.now_ns() ^ (std::process::id() as u64) << 32);
-    let mut refiner = Refiner::new(cfg, lineage)?;
+    // A lineage per chain: a restarted refine continues its checkpointed
+    // chain (same lineage and ids), else starts a new id space.
+    let mut refiner = resume::start(cfg, clock, restart)?;
+    let mut ckpt = resume::Checkpointer::new(restart, ports.chain.max_len());
     let tick = Duration::from_secs_f64(cfg.refine.period_ms * 1e-3);
     let work = Duration::from_secs_f64(cfg.refine.work_ms * 1e-3);
     let publish_ns = (cfg.refine.publish_period_ms * 1e6) as u64;
@@ -427,7 +445,8 @@ pub fn run(
                 next_work = now + period_ns;
                 let t_in = clock.now_ns();
                 let fresh = refiner.is_empty();
-                refiner.work(work)?;
+                // The checkpoint's cost comes out of the round's work time.
+                refiner.work(work.saturating_sub(ckpt.last_cost))?;
                 m.budget.record(t_in, clock.now_ns());
                 let now = clock.now_ns();
                 if fresh || now >= next_publish {
@@ -442,7 +461,13 @@ pub fn run(
                             ),
                         });
                     }
-                    chain_pub.publish_with(len, |buf| refiner.write_snapshot(buf, now))??;
+                    // Checkpoint before sending: no version is seen that a
+                    // restart could publish again.
+                    chain_pub.publish_with(len, |buf| {
+                        let n = refiner.write_snapshot(buf, now)?;
+                        ckpt.save(refiner.next_id(), &buf[..n]);
+                        Ok::<_, StageError>(n)
+                    })??;
                     m.chain.versions = refiner.version();
                     m.chain.states = refiner.len() as u64;
                     m.chain.delta_s = refiner.delta();

@@ -359,6 +359,9 @@ fn filter_loop_publishes_one_belief_per_observation_and_tracks_the_ship() {
         let cfg = test_config(&[
             &format!("filter.backend={backend}"),
             "filter.pf.particles=500",
+            // The observations below are stamped up to 2 s ahead of the
+            // clock (published faster than their sensor rate).
+            "ingest.max_age_s=10",
         ]);
         let _c = Cleanup(cfg.run.prefix.clone());
         let stop = Arc::new(AtomicBool::new(false));
