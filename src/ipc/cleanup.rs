@@ -184,9 +184,36 @@ pub fn run_prefixes() -> Vec<String> {
     out
 }
 
+/// Remove the launcher state directories (`<temp>/<run prefix>state`, the
+/// resume files and refine's chain checkpoint) of runs whose launcher is
+/// gone: a launcher killed with SIGKILL cannot remove its own. Returns how
+/// many were removed.
+pub fn sweep_stale_state_dirs(temp: &std::path::Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(temp) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        let Some(prefix) = name.strip_suffix("state") else {
+            continue;
+        };
+        match run_prefix_pid(prefix) {
+            Some(pid) if !pid_alive(pid) => {}
+            _ => continue,
+        }
+        if e.path().is_dir() && std::fs::remove_dir_all(e.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
+}
+
 /// Remove the resources of run prefixes whose creating process is gone and
-/// that have no alive node. Returns the prefixes removed.
+/// that have no alive node (and the state directories of such runs).
+/// Returns the prefixes whose shared memory was removed.
 pub fn sweep_stale_runs() -> Vec<String> {
+    sweep_stale_state_dirs(&std::env::temp_dir());
     let mut swept = Vec::new();
     for prefix in run_prefixes() {
         match run_prefix_pid(&prefix) {
@@ -206,6 +233,23 @@ pub fn sweep_stale_runs() -> Vec<String> {
 mod tests {
     use super::*;
     use crate::ipc::{Belief, Bus, BusConfig};
+
+    #[test]
+    fn state_dirs_of_dead_launchers_are_swept_and_live_ones_kept() {
+        let temp = std::env::temp_dir().join(format!("bb-sweep-{}", std::process::id()));
+        // pid 0x7ffffffe is above any pid_max, so its launcher is gone.
+        let dead = temp.join(format!("{RUN_STEM}7ffffffe-0badcafe_state"));
+        let live = temp.join(format!("{}state", run_prefix()));
+        let other = temp.join("unrelated_state");
+        for d in [&dead, &live, &other] {
+            std::fs::create_dir_all(d).unwrap();
+            std::fs::write(d.join("refine.ckpt"), b"x").unwrap();
+        }
+        assert_eq!(sweep_stale_state_dirs(&temp), 1);
+        assert!(!dead.exists());
+        assert!(live.exists() && other.exists());
+        std::fs::remove_dir_all(&temp).unwrap();
+    }
 
     #[test]
     fn run_prefixes_are_valid_unique_and_carry_the_pid() {
