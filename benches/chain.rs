@@ -37,13 +37,7 @@ fn sizes() -> Vec<usize> {
 
 /// Thread CPU time (CLOCK_THREAD_CPUTIME_ID).
 fn cpu_now() -> Duration {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes into the timespec we own.
-    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
+    Duration::from_nanos(beliefbus::rt::clock::thread_cpu_ns())
 }
 
 /// A clock: wall time, or thread CPU time with BENCH_CPU=1.

@@ -15,6 +15,7 @@ use beliefbus::filter::ukf::{Ukf, UkfConfig};
 use beliefbus::filter::BayesFilter;
 use beliefbus::model::ship::{Ship, ShipParams};
 use beliefbus::model::Measurement;
+use beliefbus::rt::clock::thread_cpu_ns;
 use criterion::{BenchmarkId, Criterion};
 use hdrhistogram::Histogram;
 use std::hint::black_box;
@@ -136,18 +137,6 @@ fn percentiles() {
             }
         }
     }
-}
-
-/// CPU time of this thread (ns): unlike wall time it excludes the time the
-/// thread was preempted, so it stays meaningful on a loaded machine.
-fn thread_cpu_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes into the timespec we own.
-    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
 fn main() {

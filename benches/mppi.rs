@@ -19,6 +19,7 @@ use beliefbus::control::mppi::{Mppi, MppiConfig};
 use beliefbus::control::Controller;
 use beliefbus::model::ship::{Ship, ShipParams};
 use beliefbus::model::{Bounds, Dims, SdeModel};
+use beliefbus::rt::clock::thread_cpu_ns;
 use criterion::{BenchmarkId, Criterion};
 use hdrhistogram::Histogram;
 use rand::RngExt;
@@ -184,18 +185,6 @@ fn closed_loop<M: SdeModel>(label: &str, model: M, k: usize) {
             h.max() as f64 / 1e3,
         );
     }
-}
-
-/// CPU time of this thread (ns): unlike wall time it excludes the time the
-/// thread was preempted, so it stays meaningful on a loaded machine.
-fn thread_cpu_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes into the timespec we own.
-    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
 fn main() {

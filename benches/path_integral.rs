@@ -20,6 +20,7 @@ use beliefbus::control::path_integral::{
 use beliefbus::control::Controller;
 use beliefbus::experiments::ship_control::ship_cost;
 use beliefbus::model::ship::{Ship, ShipParams};
+use beliefbus::rt::clock::thread_cpu_ns;
 use criterion::Criterion;
 use hdrhistogram::Histogram;
 use std::hint::black_box;
@@ -138,17 +139,6 @@ fn controllers(c: &mut Criterion) {
             })
         });
     }
-}
-
-/// CPU time of this thread (ns).
-fn thread_cpu_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes into the timespec we own.
-    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
 /// Per-control wall and CPU percentiles over `calls` controls along the

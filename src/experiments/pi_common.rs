@@ -87,13 +87,7 @@ pub fn percentile(v: &[f64], q: f64) -> f64 {
 /// time without the time the thread spent descheduled, so percentiles stay
 /// meaningful on a loaded machine (wall time is reported beside it).
 pub fn thread_cpu_us() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes one timespec through a valid pointer.
-    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    ts.tv_sec as f64 * 1e6 + ts.tv_nsec as f64 * 1e-3
+    crate::rt::clock::thread_cpu_ns() as f64 * 1e-3
 }
 
 /// Euclidean norm.
