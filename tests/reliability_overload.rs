@@ -154,15 +154,17 @@ fn overload(max_age_frac: f64, step: u64) -> Outcome {
     // keeps a broken build from hanging.
     let deadline = Instant::now() + PATIENCE;
     let mut accounted = 0;
+    let mut last: Option<StageStats> = None;
     while accounted < OBS {
         assert!(
             Instant::now() < deadline,
-            "the filter accounted for {accounted} of {OBS} observations"
+            "the filter accounted for {accounted} of {OBS} observations; last report {last:?}"
         );
         std::thread::sleep(Duration::from_millis(5));
         drain(&mut waits);
         while let Some(s) = stats.receive().unwrap() {
             accounted = accounted.max(s.processed + s.dropped);
+            last = Some(s);
         }
     }
     drain(&mut waits);
