@@ -78,11 +78,36 @@ struct Outcome {
     rss_end_kb: u64,
 }
 
+/// Stops the filter thread and removes the run's shared memory when the
+/// test ends early (a failed assertion unwinds through it): declared before
+/// the feeder's ports, it drops after them, so no node of this process is
+/// left alive and the whole prefix can go.
+struct Teardown {
+    prefix: String,
+    stop: Arc<AtomicBool>,
+    filter: Option<std::thread::JoinHandle<StageStats>>,
+}
+
+impl Drop for Teardown {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(f) = self.filter.take() {
+            let _ = f.join();
+        }
+        let _ = cleanup::remove_prefix(&self.prefix);
+    }
+}
+
 fn overload(max_age_frac: f64, step: u64) -> Outcome {
     let prefix = cleanup::run_prefix();
     let c = cfg(&prefix, max_age_frac * step as f64 / 1e3);
     let stop = Arc::new(AtomicBool::new(false));
-    let filter = {
+    let mut teardown = Teardown {
+        prefix: prefix.clone(),
+        stop: stop.clone(),
+        filter: None,
+    };
+    teardown.filter = Some({
         let (c, stop) = (c.clone(), stop.clone());
         std::thread::spawn(move || {
             run_stage(
@@ -94,7 +119,7 @@ fn overload(max_age_frac: f64, step: u64) -> Outcome {
             )
             .unwrap()
         })
-    };
+    });
     let bus = Bus::open(&c.bus(), "feeder").unwrap();
     let mut obs = bus.publisher::<Observation>().unwrap();
     let beliefs = bus.subscriber_with::<Belief>(256, false).unwrap();
@@ -169,9 +194,9 @@ fn overload(max_age_frac: f64, step: u64) -> Outcome {
     }
     drain(&mut waits);
     stop.store(true, Ordering::Relaxed);
-    let final_stats = filter.join().unwrap();
+    let final_stats = teardown.filter.take().unwrap().join().unwrap();
     drop((obs, beliefs, stats, bus));
-    let _ = cleanup::remove_prefix(&prefix);
+    drop(teardown); // removes the prefix
     assert!(cleanup::resources(&prefix).is_empty());
     Outcome {
         published: OBS,
