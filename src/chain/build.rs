@@ -440,20 +440,7 @@ impl Chain {
     fn connect(&mut self, i: usize) -> Result<(), ChainError> {
         let d = self.dim;
         let n = self.ids.len();
-        let x: [f64; MAX_INDEX_DIM] = {
-            let mut a = [0.0; MAX_INDEX_DIM];
-            a[..d].copy_from_slice(&self.states[i * d..(i + 1) * d]);
-            a
-        };
-        let x = &x[..d];
-        // Query centre: z, or the advected point z + m(z).
-        let mut centre = [0.0; MAX_INDEX_DIM];
-        centre[..d].copy_from_slice(x);
-        if self.cfg.step.is_some() {
-            for c in 0..d {
-                centre[c] += self.adv[i * d + c];
-            }
-        }
+        let centre = self.query_centre(i);
         let q = &centre[..d];
         let r = match self.cfg.near {
             NearRule::Knn { .. } => {
@@ -494,6 +481,19 @@ impl Chain {
         self.connect_near(i, r)
     }
 
+    /// The Near query centre of slot `i`: z, or the advected point z + m(z).
+    fn query_centre(&self, i: usize) -> [f64; MAX_INDEX_DIM] {
+        let d = self.dim;
+        let mut centre = [0.0; MAX_INDEX_DIM];
+        centre[..d].copy_from_slice(&self.states[i * d..(i + 1) * d]);
+        if self.cfg.step.is_some() {
+            for (c, m) in centre[..d].iter_mut().zip(&self.adv[i * d..(i + 1) * d]) {
+                *c += m;
+            }
+        }
+        centre
+    }
+
     /// The rest of ConnectState for slot `i` once its Near set is in
     /// `self.neigh` with radius `r`: holding time and transition row.
     fn connect_near(&mut self, i: usize, r: f64) -> Result<(), ChainError> {
@@ -504,13 +504,7 @@ impl Chain {
             a
         };
         let x = &x[..d];
-        let mut centre = [0.0; MAX_INDEX_DIM];
-        centre[..d].copy_from_slice(x);
-        if self.cfg.step.is_some() {
-            for c in 0..d {
-                centre[c] += self.adv[i * d + c];
-            }
-        }
+        let centre = self.query_centre(i);
         let q = &centre[..d];
         self.row_stale[i] = false;
         let (fnorm, dnorm) = (self.drift_norm[i], self.diff_norm[i]);
