@@ -260,12 +260,17 @@ pub struct Subscriber<M: Message> {
     subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, M, ()>,
     pub(super) listener: Option<Listener<ipc::Service>>,
     service: String,
-    /// One message taken off the queue by a spinning loop's poll
+    /// One sample taken off the queue by a spinning loop's poll
     /// ([`Self::poll`]), handed out first by the next receive: the spin
     /// path scans the queue once per message, as a bare `receive` loop does,
-    /// instead of `has_samples` and then `receive`.
-    stash: std::cell::Cell<Option<M>>,
+    /// instead of `has_samples` and then `receive`. The iceoryx2 sample
+    /// itself is kept (a borrowed chunk of shared memory, a few words), not
+    /// a copy of its payload: a 704 B belief is then read in place once,
+    /// as bare iceoryx2 reads it, instead of copied in and out of the stash.
+    stash: std::cell::RefCell<Option<Sample<M>>>,
 }
+
+type Sample<M> = iceoryx2::sample::Sample<ipc::Service, M, ()>;
 
 impl<M: Message> Debug for Subscriber<M> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -309,7 +314,7 @@ impl<M: Message> Subscriber<M> {
             subscriber,
             listener,
             service: name.to_string(),
-            stash: std::cell::Cell::new(None),
+            stash: std::cell::RefCell::new(None),
         })
     }
 
@@ -320,28 +325,22 @@ impl<M: Message> Subscriber<M> {
         }
     }
 
+    /// The oldest unread sample: the stashed one, else the queue's.
+    fn next_sample(&self) -> Result<Option<Sample<M>>, IpcError> {
+        if let Some(s) = self.stash.borrow_mut().take() {
+            return Ok(Some(s));
+        }
+        self.subscriber.receive().map_err(|e| self.recv_err(e))
+    }
+
     /// The oldest unread message, copied out.
     pub fn receive(&self) -> Result<Option<M>, IpcError> {
-        if let Some(m) = self.stash.take() {
-            return Ok(Some(m));
-        }
-        match self.subscriber.receive() {
-            Ok(Some(s)) => Ok(Some(*s.payload())),
-            Ok(None) => Ok(None),
-            Err(e) => Err(self.recv_err(e)),
-        }
+        Ok(self.next_sample()?.map(|s| *s.payload()))
     }
 
     /// Read the oldest unread message in place (no copy) with `f`.
     pub fn receive_with<R>(&self, f: impl FnOnce(&M) -> R) -> Result<Option<R>, IpcError> {
-        if let Some(m) = self.stash.take() {
-            return Ok(Some(f(&m)));
-        }
-        match self.subscriber.receive() {
-            Ok(Some(s)) => Ok(Some(f(s.payload()))),
-            Ok(None) => Ok(None),
-            Err(e) => Err(self.recv_err(e)),
-        }
+        Ok(self.next_sample()?.map(|s| f(s.payload())))
     }
 
     /// The newest unread message; older unread ones are discarded and
@@ -364,10 +363,7 @@ impl<M: Message> Subscriber<M> {
     }
 
     fn stash_full(&self) -> bool {
-        let m = self.stash.take();
-        let full = m.is_some();
-        self.stash.set(m);
-        full
+        self.stash.borrow().is_some()
     }
 
     /// The spin path's test for data: take the oldest message into the
@@ -380,7 +376,7 @@ impl<M: Message> Subscriber<M> {
         }
         match self.subscriber.receive() {
             Ok(Some(s)) => {
-                self.stash.set(Some(*s.payload()));
+                *self.stash.borrow_mut() = Some(s);
                 true
             }
             Ok(None) => false,
