@@ -16,7 +16,7 @@
 //! | `belief`  | [`Belief`]       | `beliefbus.Belief.v1`         |
 //! | `control` | [`Control`]      | `beliefbus.Control.v1`        |
 //! | `truth`   | [`Truth`]        | `beliefbus.Truth.v1`          |
-//! | `stats`   | [`StageStats`]   | `beliefbus.StageStats.v1`     |
+//! | `stats`   | [`StageStats`]   | `beliefbus.StageStats.v2`     |
 
 use crate::belief::Gaussian;
 use crate::{MAX_CONTROL, MAX_OBS, MAX_STATE};
@@ -437,6 +437,8 @@ pub struct HopStats {
 pub const STATS_HOPS: usize = 4;
 /// Rejection-reason slots in one [`StageStats`].
 pub const STATS_REASONS: usize = 8;
+/// Drop-reason slots in one [`StageStats`] (`crate::stage::DropReason`).
+pub const STATS_DROP_REASONS: usize = 4;
 
 /// The stages of a pipeline (`stage` field of [`StageStats`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -494,7 +496,7 @@ pub mod stats_flags {
 
 /// Periodic (and final) statistics of a stage (stage → launcher).
 #[derive(Clone, Copy, Debug, PartialEq, ZeroCopySend)]
-#[type_name("beliefbus.StageStats.v1")]
+#[type_name("beliefbus.StageStats.v2")]
 #[repr(C)]
 pub struct StageStats {
     /// seq: report number; t_valid = t_pub: when the report was made.
@@ -557,6 +559,11 @@ pub struct StageStats {
     pub chain_swap_p99_ns: u64,
     /// Filter: largest belief mass lost in a remap (before renormalisation).
     pub chain_mass_lost_max: f64,
+    /// `dropped` by reason (`crate::stage::DropReason`: lost in transport,
+    /// stale, superseded, unread at the stop). Ingest, filter and control classify every drop,
+    /// so these sum to `dropped`; refine and plant (skipped periods) leave
+    /// them 0.
+    pub dropped_by_reason: [u64; STATS_DROP_REASONS],
 }
 
 impl Default for StageStats {
@@ -591,6 +598,7 @@ impl Default for StageStats {
             chain_swap_p50_ns: 0,
             chain_swap_p99_ns: 0,
             chain_mass_lost_max: 0.0,
+            dropped_by_reason: [0; STATS_DROP_REASONS],
         }
     }
 }
@@ -650,7 +658,13 @@ mod tests {
             ]
         };
         for n in names {
-            assert!(n.starts_with("beliefbus.") && n.ends_with(".v1"), "{n}");
+            let version = n.rsplit_once(".v").map(|(_, v)| v).unwrap_or("");
+            assert!(
+                n.starts_with("beliefbus.")
+                    && !version.is_empty()
+                    && version.bytes().all(|b| b.is_ascii_digit()),
+                "{n}"
+            );
         }
     }
 

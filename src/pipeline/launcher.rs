@@ -134,6 +134,8 @@ struct Stage {
     /// Counters of earlier incarnations (processed, dropped, rejected,
     /// deadline misses, late, controls received, processed after warm-up).
     earlier: [u64; 7],
+    /// `dropped_by_reason` of earlier incarnations.
+    earlier_drops: [u64; crate::ipc::STATS_DROP_REASONS],
     /// Causes of the deaths of earlier incarnations.
     deaths: Vec<String>,
 }
@@ -218,6 +220,7 @@ fn spawn(
         heartbeat_misses: 0,
         chaos_kills: 0,
         earlier: [0; 7],
+        earlier_drops: [0; crate::ipc::STATS_DROP_REASONS],
         deaths: Vec::new(),
     })
 }
@@ -460,6 +463,9 @@ fn supervise(
                     st.late += s.earlier[4];
                     st.controls_received += s.earlier[5];
                     st.processed_after_warmup += s.earlier[6];
+                    for (d, e) in st.dropped_by_reason.iter_mut().zip(s.earlier_drops) {
+                        *d += e;
+                    }
                 }
                 (
                     k,
@@ -590,6 +596,9 @@ fn on_death(ctx: &mut Ctx, mon: &mut Monitor, s: &mut Stage) -> Result<()> {
         s.earlier[4] += st.late;
         s.earlier[5] += st.controls_received;
         s.earlier[6] += st.processed_after_warmup;
+        for (e, d) in s.earlier_drops.iter_mut().zip(st.dropped_by_reason) {
+            *e += d;
+        }
     }
     mon.forget(s.kind);
     // iceoryx2 dead-node cleanup: the dead process's node, its ports and

@@ -166,6 +166,10 @@ impl ReportInput {
                     "core": if s.core >= 0 { json!(s.core) } else { Value::Null },
                     "processed": s.processed,
                     "dropped": s.dropped,
+                    "dropped_by_reason": crate::stage::DropReason::ALL
+                        .iter()
+                        .map(|r| (r.name().to_string(), json!(s.dropped_by_reason[*r as usize])))
+                        .collect::<Map<String, Value>>(),
                     "rejected": s.rejected,
                     "rejected_by_reason": reasons(*kind, &s.rejected_by_reason),
                     "deadline_misses": s.deadline_misses,

@@ -17,7 +17,8 @@
 //! nothing.
 
 use super::{
-    guarded, secs_since, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort,
+    guarded, secs_since, stopped, DropReason, Metrics, SeqTracker, StageError, StageIdentity,
+    StatsPort,
 };
 use crate::control::cost::TrackingCost;
 use crate::control::mppi::Mppi;
@@ -257,9 +258,11 @@ pub fn run_with(
                 let (latest, skipped) = belief.latest()?;
                 if let Some(b) = latest {
                     let t_in = clock.now_ns();
-                    m.dropped += skipped + seq.observe(b.header.seq);
+                    m.count_drop(DropReason::Superseded, skipped);
+                    m.count_drop(DropReason::Lost, seq.observe(b.header.seq));
                     if max_age_ns > 0 && t_in.saturating_sub(b.header.t_pub_ns) > max_age_ns {
-                        m.dropped += 1; // stale: wait for a fresh one
+                        // Stale: wait for a fresh one.
+                        m.count_drop(DropReason::Stale, 1);
                         return Ok(());
                     }
                     let Some(backend) = backend.as_mut() else {

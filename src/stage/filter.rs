@@ -18,7 +18,8 @@
 //! snapshot arrives; if refine stops, filtering goes on with the last one.
 
 use super::{
-    guarded, secs_since, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort,
+    guarded, secs_since, stopped, DropReason, Metrics, SeqTracker, StageError, StageIdentity,
+    StatsPort,
 };
 use crate::belief::Gaussian;
 use crate::filter::ekf::Ekf;
@@ -309,7 +310,11 @@ pub fn run_with(
     };
     let mut u = [0.0; MAX_CONTROL];
     let mut epoch: Option<u64> = resumed.as_ref().map(|(b, _)| b.t_valid_ns);
-    let mut seq = SeqTracker::default();
+    // Ingest numbers from 0: a fresh filter counts what it never saw.
+    let mut seq = match resumed {
+        Some(_) => SeqTracker::default(),
+        None => SeqTracker::from_zero(),
+    };
     let mut out = Belief::default();
     let mut out_seq = resumed.as_ref().map(|(b, _)| b.seq + 1).unwrap_or(0);
     let max_age_ns = (cfg.filter.max_obs_age_us * 1e3) as u64;
@@ -335,12 +340,13 @@ pub fn run_with(
                     // An endless backlog must not starve the report (the
                     // supervisor's heartbeat).
                     stats.tick(&m, t_in)?;
-                    m.dropped += seq.observe(o.header.seq);
+                    m.count_drop(DropReason::Lost, seq.observe(o.header.seq));
                     if max_age_ns > 0
                         && t_in.saturating_sub(o.header.t_pub_ns) > max_age_ns
                         && obs_sub.has_data()
                     {
-                        m.dropped += 1; // stale, and a fresher one waits
+                        // Stale, and a fresher one waits.
+                        m.count_drop(DropReason::Stale, 1);
                         continue;
                     }
                     if time_out_of_range(o.header.t_valid_ns, t_in, ahead_ns, epoch.is_none()) {
@@ -401,7 +407,10 @@ pub fn run_with(
                     out.trace.t_filter_out_ns = now;
                     belief.publish(&out)?;
                     out_seq += 1;
-                    m.processed += 1;
+                    // A refused update is counted as rejected, not filtered.
+                    if out.status & belief_status::UPDATE_REFUSED == 0 {
+                        m.processed += 1;
+                    }
                     m.budget.record_released(o.header.t_pub_ns, t_in, now);
                     m.record_hops(&out.trace);
                     if let (Backend::Chain(f), Some(sub)) = (&mut filter, chain_sub) {
@@ -417,6 +426,15 @@ pub fn run_with(
             Ok(())
         })
     })?;
+    // What is still queued is accounted for, not filtered (at most a few
+    // queues' worth: a publisher still running cannot hold up the stop).
+    for _ in 0..256 {
+        let Ok(Some(o)) = ports.obs.receive() else {
+            break;
+        };
+        m.count_drop(DropReason::Lost, seq.observe(o.header.seq));
+        m.count_drop(DropReason::Shutdown, 1);
+    }
     let last = ports.stats.publish(&m, clock.now_ns(), true)?;
     match err {
         Some(e) if !stopped(stop) => Err(e),

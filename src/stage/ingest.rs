@@ -24,7 +24,7 @@
 //! filter and is rejected as `too_old`.
 
 use super::reorder::{RejectLog, ReorderBuffer};
-use super::{guarded, stopped, Metrics, StageError, StageIdentity, StatsPort};
+use super::{guarded, stopped, DropReason, Metrics, StageError, StageIdentity, StatsPort};
 use crate::ipc::{
     run_loop, Bus, Hop, Observation, Publisher, SensorSample, StageKind, StageStats, Subscriber,
     Wake, SENSOR_MAX_DIM,
@@ -349,7 +349,8 @@ pub fn run(
                         }
                         Err(reason) => reject(&mut m, &mut log, reason, &s, t_in),
                     }
-                    m.dropped = v.lost();
+                    let lost = v.lost() - m.dropped_by_reason[DropReason::Lost as usize];
+                    m.count_drop(DropReason::Lost, lost);
                     while let Some(mut r) = merge.pop_ready(clock.now_ns()) {
                         forward(&mut r, &mut out_seq, obs, &mut m, clock.now_ns())?;
                     }
@@ -371,9 +372,12 @@ pub fn run(
             Ok(())
         })
     })?;
-    // Whatever is still held goes out before the final report.
+    // Whatever is still held goes out before the final report (what cannot
+    // be sent any more is counted, not lost silently).
     while let Some(mut r) = merge.pop_ready(u64::MAX) {
-        let _ = forward(&mut r, &mut out_seq, &mut ports.obs, &mut m, clock.now_ns());
+        if forward(&mut r, &mut out_seq, &mut ports.obs, &mut m, clock.now_ns()).is_err() {
+            m.count_drop(DropReason::Shutdown, 1);
+        }
     }
     let last = ports.stats.publish(&m, clock.now_ns(), true)?;
     match err {

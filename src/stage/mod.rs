@@ -20,8 +20,8 @@ pub mod reorder;
 
 use crate::ipc::BusConfig;
 use crate::ipc::{
-    stats_flags, Bus, Hop, HopStats, IpcError, Publisher, StageKind, StageStats, Trace, STATS_HOPS,
-    STATS_REASONS,
+    stats_flags, Bus, Hop, HopStats, IpcError, Publisher, StageKind, StageStats, Trace,
+    STATS_DROP_REASONS, STATS_HOPS, STATS_REASONS,
 };
 use crate::pipeline::supervisor_resume::Resume;
 use crate::pipeline::{ConfigError, PipelineConfig};
@@ -74,23 +74,82 @@ impl StageIdentity {
     }
 }
 
+/// Why a stage dropped an input (index into `dropped_by_reason`; the
+/// accounting of an input stream is `published = processed + dropped +
+/// rejected + in flight`, each input in exactly one term).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(usize)]
+pub enum DropReason {
+    /// Never reached the stage: a gap in the publisher's sequence numbers —
+    /// overwritten in a full subscriber queue (iceoryx2's safe overflow
+    /// does that silently), not delivered by the publisher, or published
+    /// before this subscriber was connected.
+    Lost = 0,
+    /// Received but skipped as too old (the freshest-wins policy).
+    Stale = 1,
+    /// Received but replaced by a newer value before it was used (a
+    /// latest-value read).
+    Superseded = 2,
+    /// Still queued when the stage stopped (read off the queue and counted
+    /// on the way out, not processed).
+    Shutdown = 3,
+}
+
+impl DropReason {
+    /// Every reason, in index order.
+    pub const ALL: [DropReason; 4] = [
+        DropReason::Lost,
+        DropReason::Stale,
+        DropReason::Superseded,
+        DropReason::Shutdown,
+    ];
+
+    /// Report name (`stages.<name>.dropped_by_reason.<reason>`).
+    pub fn name(self) -> &'static str {
+        match self {
+            DropReason::Lost => "lost",
+            DropReason::Stale => "stale",
+            DropReason::Superseded => "superseded",
+            DropReason::Shutdown => "shutdown",
+        }
+    }
+}
+const _: () = assert!(DropReason::ALL.len() <= STATS_DROP_REASONS);
+
 /// Tracks a per-publisher sequence number and counts the gaps (samples lost
 /// or superseded before this reader saw them).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SeqTracker {
     last: Option<u64>,
+    /// The first message seen is measured against sequence number 0.
+    from_zero: bool,
 }
 
 impl SeqTracker {
+    /// A tracker for a publisher that numbers from 0 (every beliefbus
+    /// publisher, [`crate::ipc::Header::seq`]): a first message with
+    /// sequence number n reveals n messages lost before it (published
+    /// before this reader connected, or overwritten before its first
+    /// read). `default()` instead starts counting at the first message
+    /// seen (a reader that resumes mid-stream).
+    pub fn from_zero() -> Self {
+        Self {
+            last: None,
+            from_zero: true,
+        }
+    }
+
     /// Observe `seq`; returns how many sequence numbers were skipped. A
     /// sequence number at or below the last one (a restarted publisher)
     /// restarts the tracking without counting a gap.
     pub fn observe(&mut self, seq: u64) -> u64 {
         let gap = match self.last {
             Some(l) if seq > l => seq - l - 1,
+            None if self.from_zero => seq,
             _ => 0,
         };
         self.last = Some(seq);
+        self.from_zero = false;
         gap
     }
 }
@@ -99,7 +158,9 @@ impl SeqTracker {
 #[derive(Debug)]
 pub struct Metrics {
     pub processed: u64,
+    /// Total drops; [`Self::count_drop`] also classifies them.
     pub dropped: u64,
+    pub dropped_by_reason: [u64; STATS_DROP_REASONS],
     pub rejected_by_reason: [u64; STATS_REASONS],
     pub budget: Budget,
     hops: Vec<(Hop, LatencyHist)>,
@@ -136,6 +197,7 @@ impl Metrics {
         Self {
             processed: 0,
             dropped: 0,
+            dropped_by_reason: [0; STATS_DROP_REASONS],
             rejected_by_reason: [0; STATS_REASONS],
             budget: Budget::new(budget_ns),
             hops: hops.iter().map(|&h| (h, LatencyHist::new())).collect(),
@@ -150,6 +212,12 @@ impl Metrics {
             cost_time: 0.0,
             chain: ChainMetrics::default(),
         }
+    }
+
+    /// Count `n` dropped inputs.
+    pub fn count_drop(&mut self, reason: DropReason, n: u64) {
+        self.dropped += n;
+        self.dropped_by_reason[reason as usize] += n;
     }
 
     /// Count a rejection.
@@ -225,6 +293,7 @@ impl Metrics {
             chain_swap_p50_ns: self.chain.swap.quantile(0.5),
             chain_swap_p99_ns: self.chain.swap.quantile(0.99),
             chain_mass_lost_max: self.chain.mass_lost_max,
+            dropped_by_reason: self.dropped_by_reason,
             ..StageStats::default()
         };
         for (slot, (hop, h)) in s.hops.iter_mut().zip(&self.hops) {

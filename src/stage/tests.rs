@@ -4,7 +4,7 @@
 
 use super::*;
 use crate::ipc::cleanup;
-use crate::ipc::{Belief, Control, Observation, SensorSample, Truth};
+use crate::ipc::{Belief, Control, Message, Observation, SensorSample, Truth};
 use crate::pipeline::config::load;
 use crate::rt::{MonotonicClock, SimClock};
 use std::path::Path;
@@ -351,6 +351,66 @@ fn ship_observations(cfg: &PipelineConfig, n: usize, t0: u64) -> Vec<(Observatio
         out.push((o, [x[0], x[1], x[2], x[3]]));
     }
     out
+}
+
+#[test]
+fn seq_tracker_from_zero_counts_what_came_before_the_first_message() {
+    let mut t = SeqTracker::from_zero();
+    assert_eq!(t.observe(3), 3);
+    assert_eq!(t.observe(4), 0);
+    assert_eq!(t.observe(7), 2);
+    // A restarted publisher (numbering again from 0): no gap.
+    assert_eq!(t.observe(0), 0);
+    let mut r = SeqTracker::default();
+    assert_eq!(r.observe(3), 0);
+    assert_eq!(r.observe(5), 1);
+    let mut m = Metrics::new(0, &[], 0);
+    m.count_drop(DropReason::Lost, 3);
+    m.count_drop(DropReason::Shutdown, 1);
+    let s = m.to_stats(&StageIdentity::plain(StageKind::Filter));
+    assert_eq!(s.dropped, 4);
+    assert_eq!(s.dropped_by_reason, [3, 0, 0, 1]);
+}
+
+#[test]
+fn the_filter_accounts_for_every_observation_published() {
+    let cfg = test_config(&["filter.backend=ekf", "ingest.max_age_s=10"]);
+    let _c = Cleanup(cfg.run.prefix.clone());
+    let stop = Arc::new(AtomicBool::new(false));
+    let bus = Bus::open(&cfg.bus(), "test").unwrap();
+    let stats = bus.subscriber::<StageStats>().unwrap();
+    let beliefs = bus.subscriber_with::<Belief>(256, false).unwrap();
+    let mut obs = bus.publisher::<Observation>().unwrap();
+    let h = spawn(StageKind::Filter, &cfg, &stop);
+    wait_ready(&stats, 1);
+    let clock = MonotonicClock;
+    let n = 40u64;
+    for (o, _) in ship_observations(&cfg, n as usize, clock.now_ns()) {
+        let k = o.header.seq;
+        // Never delivered: 0..3 (as if published before the filter
+        // connected) and 10, 11 (as if overwritten in its queue).
+        if k < 3 || k == 10 || k == 11 {
+            continue;
+        }
+        let mut o = o;
+        o.header.t_pub_ns = clock.now_ns();
+        obs.publish(&o).unwrap();
+        // One at a time up to 20, then a burst the filter cannot keep up
+        // with (its queue overflows), and the stop right after it.
+        if k < 20 {
+            poll_until(Duration::from_secs(10), || beliefs.receive().unwrap());
+        }
+    }
+    stop.store(true, Ordering::SeqCst);
+    let fin = h.join().unwrap().unwrap();
+    let by = |r: DropReason| fin.dropped_by_reason[r as usize];
+    assert_eq!(fin.processed + fin.dropped + fin.rejected, n, "{fin:?}");
+    assert_eq!(fin.rejected, 0);
+    assert!(fin.processed >= 15, "{fin:?}");
+    assert!(by(DropReason::Lost) >= 5, "{fin:?}");
+    assert!(by(DropReason::Shutdown) <= Observation::QOS.default_buffer as u64 + 1);
+    assert_eq!(by(DropReason::Stale) + by(DropReason::Superseded), 0);
+    assert_eq!(fin.dropped_by_reason.iter().sum::<u64>(), fin.dropped);
 }
 
 #[test]
