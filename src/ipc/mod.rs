@@ -15,7 +15,7 @@
 //!   unread one); `obs` keeps a small queue; every service uses safe
 //!   overflow, so a publisher never blocks on a slow subscriber.
 //! - Wake-ups: a publisher sends the sample, then notifies the event service
-//!   of the same name; a subscriber's listener is attached to a WaitSet
+//!   of the same name (skipped while it has no listener: spinning readers); a subscriber's listener is attached to a WaitSet
 //!   ([`run_loop`]); [`WakeMode::SpinThenBlock`] polls for a bounded time
 //!   before blocking, for the latency-critical path.
 

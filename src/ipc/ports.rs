@@ -184,9 +184,12 @@ fn event(
 pub struct Publisher<M: Message> {
     publisher: iceoryx2::port::publisher::Publisher<ipc::Service, M, ()>,
     notifier: Notifier<ipc::Service>,
+    /// The event service, to see whether anyone listens.
+    events: iceoryx2::service::port_factory::event::PortFactory<ipc::Service>,
     service: String,
     sent: u64,
     notify_failures: u64,
+    notified: u64,
 }
 
 impl<M: Message> Debug for Publisher<M> {
@@ -210,16 +213,19 @@ impl<M: Message> Publisher<M> {
             .publisher_builder()
             .create()
             .map_err(|e| port_err("publisher", format!("{e:?}")))?;
-        let notifier = event(node, &sn)?
+        let events = event(node, &sn)?;
+        let notifier = events
             .notifier_builder()
             .create()
             .map_err(|e| port_err("notifier", format!("{e:?}")))?;
         Ok(Self {
             publisher,
             notifier,
+            events,
             service: name.to_string(),
             sent: 0,
             notify_failures: 0,
+            notified: 0,
         })
     }
 
@@ -231,12 +237,25 @@ impl<M: Message> Publisher<M> {
             reason: format!("{e:?}"),
         })?;
         self.sent += 1;
-        // A failed wake-up is not a failed send: the sample is delivered and
-        // a polling or spinning subscriber still finds it.
-        if self.notifier.notify().is_err() {
-            self.notify_failures += 1;
+        // No listener (every subscriber spins or polls): nothing to wake,
+        // so skip the notifier's pass over its connection slots (one
+        // atomic read instead; a listener attaching meanwhile is what
+        // `notify` itself would miss too, and its loop's periodic data
+        // check finds the sample). A failed wake-up is not a failed send:
+        // the sample is delivered and a polling or spinning subscriber
+        // still finds it.
+        if self.events.dynamic_config().number_of_listeners() > 0 {
+            match self.notifier.notify() {
+                Ok(_) => self.notified += 1,
+                Err(_) => self.notify_failures += 1,
+            }
         }
         Ok(())
+    }
+
+    /// Sends that notified listeners (those with none to wake skip it).
+    pub fn notified(&self) -> u64 {
+        self.notified
     }
 
     /// Messages sent so far.
@@ -436,6 +455,38 @@ mod stash_tests {
         assert!(!s.poll() && !s.has_data());
         assert_eq!(s.receive().unwrap(), None);
         drop((p, s, bus));
+        cleanup::remove_prefix(&cfg.prefix).unwrap();
+    }
+
+    #[test]
+    fn a_publisher_notifies_only_while_someone_listens() {
+        let cfg = BusConfig {
+            prefix: cleanup::run_prefix(),
+            instance: "test".into(),
+        };
+        let bus = Bus::open(&cfg, "t").unwrap();
+        let mut p = bus.publisher::<Observation>().unwrap();
+        // A spinning reader has no listener: delivered, nobody woken.
+        let spin = bus.subscriber_with::<Observation>(8, false).unwrap();
+        p.publish(&Observation::default()).unwrap();
+        assert!(spin.receive().unwrap().is_some());
+        assert_eq!((p.sent(), p.notified()), (1, 0));
+        // A blocking reader's listener is woken.
+        let wake = bus.subscriber::<Observation>().unwrap();
+        p.publish(&Observation::default()).unwrap();
+        assert_eq!((p.sent(), p.notified()), (2, 1));
+        let mut events = 0;
+        wake.listener
+            .as_ref()
+            .unwrap()
+            .try_wait(|_| events += 1)
+            .unwrap();
+        assert!(events >= 1);
+        assert!(wake.receive().unwrap().is_some());
+        drop(wake);
+        p.publish(&Observation::default()).unwrap();
+        assert_eq!((p.sent(), p.notified()), (3, 1));
+        drop((p, spin, bus));
         cleanup::remove_prefix(&cfg.prefix).unwrap();
     }
 }
