@@ -153,7 +153,7 @@ fn step_group<M: SdeModel + Clone>(
 }
 
 /// `advected`: ChainConfig::step = 0.01 (one δ step per observation) and
-/// flush 1e-12 (sparse support), as in the filtering experiments.
+/// the default flush (sparse support), as in the filtering experiments.
 fn step_group_with<M: SdeModel + Clone>(
     c: &mut Criterion,
     name: &str,
@@ -180,9 +180,6 @@ fn step_group_with<M: SdeModel + Clone>(
         let ch = Chain::batch(model, cf, &pts).unwrap();
         let deg = ch.mean_out_degree();
         let mut f = ChainFilter::new(model.clone(), ch, 0.01).unwrap();
-        if advected {
-            f.set_flush(1e-12);
-        }
         eprintln!(
             "{tag}/{name}/{kernel:?} n={n}: mean out-degree {deg:.2}, delta {:.2e} ({} substeps per step)",
             f.delta(),
@@ -202,7 +199,8 @@ fn step_group_with<M: SdeModel + Clone>(
 
 /// One filter step (predict 0.01 s + update) on the observations of a
 /// simulated trajectory from `prior`; thesis chain (`advected` false) or
-/// advected chain, flush 1e-12 as in the experiments.
+/// advected chain, the filter's default flush (at most `FLUSH_MASS` of the
+/// posterior mass discarded per update).
 fn sim_group<M: SdeModel + Clone>(
     c: &mut Criterion,
     name: &str,
@@ -232,7 +230,6 @@ fn sim_group<M: SdeModel + Clone>(
         let ch = Chain::batch(model, cf, &pts).unwrap();
         let deg = ch.mean_out_degree();
         let mut f = ChainFilter::new(model.clone(), ch, dt).unwrap();
-        f.set_flush(1e-12);
         let mut k = 0usize;
         let mut first = true;
         g.bench_function(BenchmarkId::from_parameter(n), |b| {
@@ -242,6 +239,8 @@ fn sim_group<M: SdeModel + Clone>(
                 first = false;
                 let mut times = Vec::with_capacity(2 * steps);
                 let mut support = 0usize;
+                let mut max_dropped = 0.0f64;
+                let dropped0 = f.discarded_total();
                 let start = Instant::now();
                 'pass: for _ in 0..2 {
                     f.reset(0.0, prior);
@@ -251,6 +250,7 @@ fn sim_group<M: SdeModel + Clone>(
                         let _ = f.update(&Measurement::full(&rec.ys[k * m..(k + 1) * m]));
                         times.push((clock.now() - t0).as_secs_f64() * 1e6);
                         support += f.support();
+                        max_dropped = max_dropped.max(f.last_discarded());
                         if start.elapsed() > Duration::from_secs(20) {
                             break 'pass;
                         }
@@ -259,9 +259,12 @@ fn sim_group<M: SdeModel + Clone>(
                 times.sort_by(f64::total_cmp);
                 let q = |p: f64| times[((times.len() - 1) as f64 * p).round() as usize];
                 eprintln!(
-                    "filter_step_sim/{tag}/{name}/{kernel:?} n={n}: out-degree {deg:.2}, {} substeps per step, mean support {:.0}, {} steps: p50 {:.1} us, p90 {:.1} us, p99 {:.1} us",
+                    "filter_step_sim/{tag}/{name}/{kernel:?} n={n}: out-degree {deg:.2}, {} substeps per step, mean support {:.0}, flush {:?}: mass dropped per update max {:.1e} mean {:.1e}, {} steps: p50 {:.1} us, p90 {:.1} us, p99 {:.1} us",
                     (dt / f.delta()).round(),
                     support as f64 / times.len() as f64,
+                    f.flush(),
+                    max_dropped,
+                    (f.discarded_total() - dropped0) / times.len() as f64,
                     times.len(),
                     q(0.5),
                     q(0.9),

@@ -175,6 +175,9 @@ pub struct RunResult {
     pub rmse: f64,
     /// Wall-clock seconds of predict + update + belief.
     pub time_s: f64,
+    /// Thread CPU seconds of the same (immune to descheduling on a loaded
+    /// machine; the figure compute comparisons use).
+    pub cpu_s: f64,
     /// Whether the estimate became non-finite or left 10× the set S.
     pub diverged: bool,
 }
@@ -190,6 +193,7 @@ pub fn run_filter(f: &mut dyn BayesFilter, rec: &Record, dims_err: Option<usize>
     let mut sq_sum = 0.0;
     let mut diverged = false;
     let t0 = Instant::now();
+    let c0 = crate::rt::clock::thread_cpu_ns();
     for (k, &t) in rec.times.iter().enumerate() {
         let y = &rec.ys[k * m..(k + 1) * m];
         if f.predict(t, &u).is_err() {
@@ -210,6 +214,7 @@ pub fn run_filter(f: &mut dyn BayesFilter, rec: &Record, dims_err: Option<usize>
         mean_error: err_sum / k,
         rmse: (sq_sum / k).sqrt(),
         time_s: t0.elapsed().as_secs_f64(),
+        cpu_s: (crate::rt::clock::thread_cpu_ns() - c0) as f64 * 1e-9,
         diverged,
     }
 }
@@ -370,10 +375,14 @@ pub fn result_row(name: &str, v: &[RunResult]) -> super::Row {
         .collect();
     let (m, se) = mean_se(&ok);
     let (t, _) = mean_se(&v.iter().map(|r| r.time_s).collect::<Vec<_>>());
+    let (c, _) = mean_se(&v.iter().map(|r| r.cpu_s).collect::<Vec<_>>());
+    let rms: Vec<f64> = v.iter().filter(|r| !r.diverged).map(|r| r.rmse).collect();
     super::Row::new(name)
         .num("mean_error", m)
+        .num("rmse", mean_se(&rms).0)
         .num("stderr", se)
         .num("median_error", median(&ok))
         .num("time_s", t)
+        .num("cpu_s", c)
         .int("diverged", (v.len() - ok.len()) as u64)
 }
