@@ -13,6 +13,8 @@
 //! - `Near` — [`NearRule`] on the k-d tree of [`index::SpatialIndex`]:
 //!   the papers' radius r = γ(log n/n)^{1/d}, or k = ⌈c log n⌉ nearest
 //!   (k-PRM*), r then being the distance to the k-th neighbour;
+//!   under incremental construction the k-NN Near lists are kept exact by
+//!   reverse queries on [`knn_tree::KnnTree`];
 //! - `ComputeHoldingTime`, `ComputeTransProb` — [`kernel`] (Gaussian or
 //!   moment-matching "LP" kernel);
 //! - `ConnectState`, batch Alg. 2.1, incremental Alg. 2.3 — [`Chain`];
@@ -26,6 +28,7 @@ pub mod diagnostics;
 pub mod equalize;
 pub mod index;
 pub mod kernel;
+pub mod knn_tree;
 pub mod linalg;
 pub mod nnls;
 pub mod retire;

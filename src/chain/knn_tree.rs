@@ -1,0 +1,608 @@
+//! A k-d tree for the exact k-NN lists of incremental construction
+//! (thesis Alg. 2.3 with the k-nearest `Near` rule): k-nearest queries and
+//! *reverse* nearest-neighbour queries under insertion.
+//!
+//! Adding z to S must put z into the Near list of every state j with
+//! ‖z − z_j‖ < r_k(j), r_k(j) the distance from z_j to its current k-th
+//! neighbour. Each point carries a bound b(j) ≥ r_k(j)² and each node the
+//! maximum of b over its subtree, so a reverse query
+//!
+//! ```text
+//! visit node ⇔ mindist²(z, bbox(node)) < max_{j ∈ node} b(j)
+//! ```
+//!
+//! only descends where some point's own radius reaches z (a per-region
+//! bound instead of the chain-wide maximum k-th radius). Bounds only need to
+//! be upper bounds: they are raised on [`KnnTree::set_bound`] and tightened
+//! on the way back up every reverse query (a stem's bound becomes the
+//! maximum of its children's).
+//!
+//! Points live in fixed-capacity leaf buckets (coordinates contiguous per
+//! leaf, with their slot and bound), nodes keep tight bounding boxes that
+//! grow on insertion; a full leaf splits at the median of its widest axis.
+//! There is no removal (chains shrink by rebuilding, see [`super::retire`]).
+
+/// Points per leaf bucket.
+const BUCKET: usize = 32;
+/// Points per leaf of a bulk-built tree (room left for insertions).
+const BULK_LEAF: usize = 24;
+const NONE: u32 = u32::MAX;
+/// Largest dimension supported.
+pub const MAX_DIM: usize = 16;
+
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    /// Stem: split axis and children; leaf: `leaf` is the bucket index.
+    axis: u32,
+    split: f64,
+    left: u32,
+    right: u32,
+    parent: u32,
+    leaf: u32,
+    /// Upper bound on the point bounds b(j) in the subtree.
+    max_b: f64,
+}
+
+/// k-d tree over `u32` slots with per-point bounds for reverse queries.
+#[derive(Clone, Debug)]
+pub struct KnnTree {
+    dim: usize,
+    nodes: Vec<Node>,
+    /// Tight bounding box per node: lo (d values) then hi (d values).
+    bbox: Vec<f64>,
+    /// Leaf buckets: coordinates (BUCKET × d), slots, bounds, length, node.
+    coords: Vec<f64>,
+    slots: Vec<u32>,
+    bounds: Vec<f64>,
+    lens: Vec<u32>,
+    leaf_node: Vec<u32>,
+    /// Where each slot lives: (leaf, position); NONE if not stored.
+    loc: Vec<(u32, u32)>,
+    len: usize,
+}
+
+impl KnnTree {
+    /// An empty tree for points of dimension `dim` (1..=[`MAX_DIM`]).
+    pub fn new(dim: usize) -> Self {
+        let mut t = Self {
+            dim: dim.clamp(1, MAX_DIM),
+            nodes: vec![],
+            bbox: vec![],
+            coords: vec![],
+            slots: vec![],
+            bounds: vec![],
+            lens: vec![],
+            leaf_node: vec![],
+            loc: vec![],
+            len: 0,
+        };
+        t.new_leaf_node(NONE);
+        t
+    }
+
+    /// A tree over the flat `n × dim` `points`, slot i for point i, all
+    /// bounds 0 (balanced: median splits on the widest axis).
+    pub fn from_points(dim: usize, points: &[f64]) -> Self {
+        let mut t = Self::new(dim);
+        let d = t.dim;
+        let n = points.len() / d;
+        t.loc = vec![(NONE, NONE); n];
+        let mut order: Vec<u32> = (0..n as u32).collect();
+        if n > 0 {
+            t.build(0, points, &mut order);
+        }
+        t.len = n;
+        t
+    }
+
+    fn build(&mut self, node: u32, points: &[f64], idx: &mut [u32]) {
+        let d = self.dim;
+        // Tight box.
+        let b = node as usize * 2 * d;
+        for &i in idx.iter() {
+            let p = &points[i as usize * d..(i as usize + 1) * d];
+            for c in 0..d {
+                self.bbox[b + c] = self.bbox[b + c].min(p[c]);
+                self.bbox[b + d + c] = self.bbox[b + d + c].max(p[c]);
+            }
+        }
+        if idx.len() <= BULK_LEAF {
+            let leaf = self.nodes[node as usize].leaf as usize;
+            for &i in idx.iter() {
+                let pos = self.lens[leaf] as usize;
+                let p = &points[i as usize * d..(i as usize + 1) * d];
+                self.put(leaf, pos, p, i, 0.0);
+                self.lens[leaf] += 1;
+            }
+            return;
+        }
+        let axis = self.widest_axis(node as usize);
+        let mid = idx.len() / 2;
+        idx.select_nth_unstable_by(mid, |a, b| {
+            points[*a as usize * d + axis].total_cmp(&points[*b as usize * d + axis])
+        });
+        let split = points[idx[mid] as usize * d + axis];
+        let (l, r) = self.make_stem(node, axis, split);
+        let (lo, hi) = idx.split_at_mut(mid);
+        self.build(l, points, lo);
+        self.build(r, points, hi);
+    }
+
+    fn widest_axis(&self, node: usize) -> usize {
+        let d = self.dim;
+        let b = node * 2 * d;
+        (0..d)
+            .max_by(|&a, &c| {
+                let wa = self.bbox[b + d + a] - self.bbox[b + a];
+                let wc = self.bbox[b + d + c] - self.bbox[b + c];
+                wa.total_cmp(&wc)
+            })
+            .unwrap_or(0)
+    }
+
+    fn new_leaf_node(&mut self, parent: u32) -> u32 {
+        let d = self.dim;
+        let leaf = self.lens.len() as u32;
+        let node = self.nodes.len() as u32;
+        self.nodes.push(Node {
+            axis: 0,
+            split: 0.0,
+            left: NONE,
+            right: NONE,
+            parent,
+            leaf,
+            max_b: 0.0,
+        });
+        self.bbox.extend(std::iter::repeat_n(f64::INFINITY, d));
+        self.bbox.extend(std::iter::repeat_n(f64::NEG_INFINITY, d));
+        self.coords.resize(self.coords.len() + BUCKET * d, 0.0);
+        self.slots.resize(self.slots.len() + BUCKET, NONE);
+        self.bounds.resize(self.bounds.len() + BUCKET, 0.0);
+        self.lens.push(0);
+        self.leaf_node.push(node);
+        node
+    }
+
+    /// Turn leaf node `node` into a stem with two new empty leaves (the old
+    /// bucket is reused by the left child).
+    fn make_stem(&mut self, node: u32, axis: usize, split: f64) -> (u32, u32) {
+        let old_leaf = self.nodes[node as usize].leaf;
+        let l = self.nodes.len() as u32;
+        // Left child takes over the old bucket.
+        let d = self.dim;
+        self.nodes.push(Node {
+            axis: 0,
+            split: 0.0,
+            left: NONE,
+            right: NONE,
+            parent: node,
+            leaf: old_leaf,
+            max_b: 0.0,
+        });
+        self.bbox.extend(std::iter::repeat_n(f64::INFINITY, d));
+        self.bbox.extend(std::iter::repeat_n(f64::NEG_INFINITY, d));
+        self.leaf_node[old_leaf as usize] = l;
+        let r = self.new_leaf_node(node);
+        let n = &mut self.nodes[node as usize];
+        n.axis = axis as u32;
+        n.split = split;
+        n.left = l;
+        n.right = r;
+        n.leaf = NONE;
+        (l, r)
+    }
+
+    fn put(&mut self, leaf: usize, pos: usize, p: &[f64], slot: u32, b: f64) {
+        let d = self.dim;
+        let e = leaf * BUCKET + pos;
+        self.coords[e * d..(e + 1) * d].copy_from_slice(p);
+        self.slots[e] = slot;
+        self.bounds[e] = b;
+        if self.loc.len() <= slot as usize {
+            self.loc.resize(slot as usize + 1, (NONE, NONE));
+        }
+        self.loc[slot as usize] = (leaf as u32, pos as u32);
+        let node = self.leaf_node[leaf] as usize;
+        self.nodes[node].max_b = self.nodes[node].max_b.max(b);
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the tree holds no point.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Insert point `p` as `slot` with bound 0. A slot must be inserted once.
+    pub fn insert(&mut self, p: &[f64], slot: u32) {
+        let d = self.dim;
+        let mut node = 0usize;
+        loop {
+            let b = node * 2 * d;
+            for c in 0..d {
+                self.bbox[b + c] = self.bbox[b + c].min(p[c]);
+                self.bbox[b + d + c] = self.bbox[b + d + c].max(p[c]);
+            }
+            let n = self.nodes[node];
+            if n.leaf != NONE {
+                break;
+            }
+            node = if p[n.axis as usize] < n.split {
+                n.left as usize
+            } else {
+                n.right as usize
+            };
+        }
+        let leaf = self.nodes[node].leaf as usize;
+        let pos = self.lens[leaf] as usize;
+        self.put(leaf, pos, p, slot, 0.0);
+        self.lens[leaf] += 1;
+        self.len += 1;
+        if self.lens[leaf] as usize == BUCKET {
+            self.split_leaf(node);
+        }
+    }
+
+    /// Split the full leaf at `node` at the median of its widest axis.
+    fn split_leaf(&mut self, node: usize) {
+        let d = self.dim;
+        let leaf = self.nodes[node].leaf as usize;
+        let axis = self.widest_axis(node);
+        let mut ent = [([0.0; MAX_DIM], 0u32, 0.0f64); BUCKET];
+        for (pos, en) in ent.iter_mut().enumerate() {
+            let e = leaf * BUCKET + pos;
+            en.0[..d].copy_from_slice(&self.coords[e * d..(e + 1) * d]);
+            en.1 = self.slots[e];
+            en.2 = self.bounds[e];
+        }
+        let mid = BUCKET / 2;
+        ent.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
+        let split = ent[mid].0[axis];
+        let (l, r) = self.make_stem(node as u32, axis, split);
+        self.lens[leaf] = 0;
+        for (half, child) in [(&ent[..mid], l), (&ent[mid..], r)] {
+            let cl = self.nodes[child as usize].leaf as usize;
+            let cb = child as usize * 2 * d;
+            for (p, slot, b) in half {
+                for c in 0..d {
+                    self.bbox[cb + c] = self.bbox[cb + c].min(p[c]);
+                    self.bbox[cb + d + c] = self.bbox[cb + d + c].max(p[c]);
+                }
+                let pos = self.lens[cl] as usize;
+                self.put(cl, pos, &p[..d], *slot, *b);
+                self.lens[cl] += 1;
+            }
+        }
+    }
+
+    /// Set the bound of `slot` to `b` (raising the node bounds above it).
+    pub fn set_bound(&mut self, slot: u32, b: f64) {
+        let Some(&(leaf, pos)) = self.loc.get(slot as usize) else {
+            return;
+        };
+        if leaf == NONE {
+            return;
+        }
+        self.bounds[leaf as usize * BUCKET + pos as usize] = b;
+        let mut node = self.leaf_node[leaf as usize];
+        while node != NONE {
+            let n = &mut self.nodes[node as usize];
+            if n.max_b >= b {
+                break;
+            }
+            n.max_b = b;
+            node = n.parent;
+        }
+    }
+
+    /// The bound of `slot`.
+    pub fn bound(&self, slot: u32) -> Option<f64> {
+        let &(leaf, pos) = self.loc.get(slot as usize)?;
+        (leaf != NONE).then(|| self.bounds[leaf as usize * BUCKET + pos as usize])
+    }
+
+    #[inline]
+    fn mindist2(&self, node: usize, q: &[f64]) -> f64 {
+        let d = self.dim;
+        let b = node * 2 * d;
+        let mut s = 0.0;
+        for c in 0..d {
+            let lo = self.bbox[b + c];
+            let hi = self.bbox[b + d + c];
+            let v = if q[c] < lo {
+                lo - q[c]
+            } else if q[c] > hi {
+                q[c] - hi
+            } else {
+                0.0
+            };
+            s += v * v;
+        }
+        s
+    }
+
+    /// The `k` nearest points to `q` other than `skip` (pass `u32::MAX` to
+    /// skip none), ascending, into `out` as (slot, squared distance).
+    pub fn nearest(&self, q: &[f64], k: usize, skip: u32, out: &mut Vec<(u32, f64)>) {
+        out.clear();
+        if k == 0 || self.len == 0 {
+            return;
+        }
+        self.knn_rec(0, q, k, skip, out);
+    }
+
+    fn knn_rec(&self, node: usize, q: &[f64], k: usize, skip: u32, out: &mut Vec<(u32, f64)>) {
+        let n = self.nodes[node];
+        if n.leaf != NONE {
+            let d = self.dim;
+            let leaf = n.leaf as usize;
+            let len = self.lens[leaf] as usize;
+            let base = leaf * BUCKET;
+            for pos in 0..len {
+                let e = base + pos;
+                let p = &self.coords[e * d..(e + 1) * d];
+                let mut d2 = 0.0;
+                for c in 0..d {
+                    let t = p[c] - q[c];
+                    d2 += t * t;
+                }
+                let slot = self.slots[e];
+                if slot == skip {
+                    continue;
+                }
+                if out.len() == k {
+                    if !(d2 < out[k - 1].1) {
+                        continue;
+                    }
+                    out.pop();
+                }
+                let mut i = out.len();
+                out.push((slot, d2));
+                while i > 0 && out[i - 1].1 > d2 {
+                    out[i] = out[i - 1];
+                    i -= 1;
+                }
+                out[i] = (slot, d2);
+            }
+            return;
+        }
+        let (a, b) = (n.left as usize, n.right as usize);
+        let (da, db) = (self.mindist2(a, q), self.mindist2(b, q));
+        let ((c1, d1), (c2, d2)) = if da <= db {
+            ((a, da), (b, db))
+        } else {
+            ((b, db), (a, da))
+        };
+        for (c, dc) in [(c1, d1), (c2, d2)] {
+            if out.len() == k && !(dc < out[k - 1].1) {
+                return;
+            }
+            self.knn_rec(c, q, k, skip, out);
+        }
+    }
+
+    /// Reverse query: `visit(slot, d2, bound)` for every point with
+    /// squared distance d2 to `q` below its bound (strictly). `visit`
+    /// returns the point's new bound (e.g. its new k-th squared distance
+    /// once q joined its list). Node bounds are tightened on the way.
+    pub fn reverse<F: FnMut(u32, f64, f64) -> f64>(&mut self, q: &[f64], visit: &mut F) {
+        let mut none = Vec::new();
+        self.nearest_and_reverse(q, 0, NONE, &mut none, visit);
+    }
+
+    /// [`Self::nearest`] and [`Self::reverse`] in one traversal (the k
+    /// nearest points lie where the reverse query searches anyway); `visit`
+    /// runs before the k nearest are final.
+    pub fn nearest_and_reverse<F: FnMut(u32, f64, f64) -> f64>(
+        &mut self,
+        q: &[f64],
+        k: usize,
+        skip: u32,
+        out: &mut Vec<(u32, f64)>,
+        visit: &mut F,
+    ) {
+        out.clear();
+        if self.len == 0 {
+            return;
+        }
+        self.both_rec(0, q, k, skip, out, visit);
+    }
+
+    fn both_rec<F: FnMut(u32, f64, f64) -> f64>(
+        &mut self,
+        node: usize,
+        q: &[f64],
+        k: usize,
+        skip: u32,
+        out: &mut Vec<(u32, f64)>,
+        visit: &mut F,
+    ) {
+        let n = self.nodes[node];
+        if n.leaf != NONE {
+            let d = self.dim;
+            let leaf = n.leaf as usize;
+            let len = self.lens[leaf] as usize;
+            let base = leaf * BUCKET;
+            let mut m = 0.0f64;
+            for pos in 0..len {
+                let e = base + pos;
+                let p = &self.coords[e * d..(e + 1) * d];
+                let mut d2 = 0.0;
+                for c in 0..d {
+                    let t = p[c] - q[c];
+                    d2 += t * t;
+                }
+                if d2 < self.bounds[e] {
+                    self.bounds[e] = visit(self.slots[e], d2, self.bounds[e]);
+                }
+                m = m.max(self.bounds[e]);
+                let slot = self.slots[e];
+                if k == 0 || slot == skip {
+                    continue;
+                }
+                if out.len() == k {
+                    if !(d2 < out[k - 1].1) {
+                        continue;
+                    }
+                    out.pop();
+                }
+                let mut i = out.len();
+                out.push((slot, d2));
+                while i > 0 && out[i - 1].1 > d2 {
+                    out[i] = out[i - 1];
+                    i -= 1;
+                }
+                out[i] = (slot, d2);
+            }
+            self.nodes[node].max_b = m;
+            return;
+        }
+        let (a, b) = (n.left as usize, n.right as usize);
+        let (da, db) = (self.mindist2(a, q), self.mindist2(b, q));
+        let order = if da <= db {
+            [(a, da), (b, db)]
+        } else {
+            [(b, db), (a, da)]
+        };
+        for (c, dc) in order {
+            let for_knn = k > 0 && (out.len() < k || dc < out[k - 1].1);
+            if for_knn || dc < self.nodes[c].max_b {
+                self.both_rec(c, q, k, skip, out, visit);
+            }
+        }
+        self.nodes[node].max_b = self.nodes[a].max_b.max(self.nodes[b].max_b);
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        self.nodes.capacity() * std::mem::size_of::<Node>()
+            + (self.bbox.capacity() + self.coords.capacity() + self.bounds.capacity()) * 8
+            + (self.slots.capacity() + self.lens.capacity() + self.leaf_node.capacity()) * 4
+            + self.loc.capacity() * 8
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::stream;
+    use rand::RngExt;
+
+    fn brute(pts: &[f64], d: usize, q: &[f64], skip: u32) -> Vec<(u32, f64)> {
+        let mut v: Vec<(u32, f64)> = pts
+            .chunks_exact(d)
+            .enumerate()
+            .filter(|(i, _)| *i as u32 != skip)
+            .map(|(i, p)| {
+                (
+                    i as u32,
+                    p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum(),
+                )
+            })
+            .collect();
+        v.sort_by(|a, b| a.1.total_cmp(&b.1));
+        v
+    }
+
+    /// k-NN lists kept by reverse queries under insertion equal brute-force
+    /// k-NN sets, and `nearest` equals brute force, for bulk-built and
+    /// incrementally built trees (incl. a grid with many equal coordinates).
+    #[test]
+    fn nearest_and_reverse_lists_match_brute_force() {
+        let mut rng = stream(11, 0);
+        for (d, grid) in [
+            (1usize, false),
+            (2, false),
+            (4, false),
+            (2, true),
+            (9, false),
+        ] {
+            let k = 6;
+            let n0 = 300;
+            let n = 900;
+            let mut pts: Vec<f64> = (0..n * d)
+                .map(|_| {
+                    let v: f64 = rng.random_range(-1.0..1.0);
+                    if grid {
+                        (v * 8.0).round() / 8.0
+                    } else {
+                        v
+                    }
+                })
+                .collect();
+            if grid {
+                // Distinct points only (lists of equal points tie).
+                pts.truncate(n0 * d);
+                let mut extra = vec![];
+                for i in 0..40 {
+                    for j in 0..15 {
+                        extra.extend_from_slice(&[i as f64 * 0.05 + 2.0, j as f64 * 0.07]);
+                    }
+                }
+                pts.extend(extra);
+            }
+            let n = pts.len() / d;
+            let mut t = KnnTree::from_points(d, &pts[..n0 * d]);
+            let mut lists: Vec<Vec<(u32, f64)>> = vec![];
+            let mut out = vec![];
+            for i in 0..n0 {
+                t.nearest(&pts[i * d..(i + 1) * d], k, i as u32, &mut out);
+                t.set_bound(i as u32, out[k - 1].1);
+                lists.push(out.clone());
+            }
+            for i in n0..n {
+                let q = &pts[i * d..(i + 1) * d];
+                t.insert(q, i as u32);
+                let mut two = vec![];
+                t.nearest(q, k, i as u32, &mut two);
+                let both = i % 2 == 0;
+                lists.push(two.clone());
+                let mut visit = |j: u32, d2: f64, b: f64| {
+                    if j as usize == i {
+                        return b;
+                    }
+                    let l = &mut lists[j as usize];
+                    assert_eq!(b, l[k - 1].1);
+                    l.pop();
+                    let p = l.partition_point(|e| e.1 <= d2);
+                    l.insert(p, (i as u32, d2));
+                    l[k - 1].1
+                };
+                if both {
+                    // One traversal: i's own bound is still 0.
+                    t.nearest_and_reverse(q, k, i as u32, &mut out, &mut visit);
+                    assert_eq!(out, two);
+                } else {
+                    t.set_bound(i as u32, two[k - 1].1);
+                    t.reverse(q, &mut visit);
+                }
+                t.set_bound(i as u32, two[k - 1].1);
+                if i % 97 == 0 || i == n - 1 {
+                    let pts_now = &pts[..(i + 1) * d];
+                    for j in 0..=i {
+                        let want = brute(pts_now, d, &pts[j * d..(j + 1) * d], j as u32);
+                        let mut w: Vec<u32> = want[..k].iter().map(|e| e.0).collect();
+                        let mut g: Vec<u32> = lists[j].iter().map(|e| e.0).collect();
+                        w.sort_unstable();
+                        g.sort_unstable();
+                        if !grid {
+                            assert_eq!(g, w, "d {d} list {j} at n {i}");
+                        }
+                        assert_eq!(lists[j][k - 1].1, want[k - 1].1, "d {d} k-th of {j}");
+                        assert_eq!(t.bound(j as u32), Some(want[k - 1].1));
+                    }
+                    let q: Vec<f64> = (0..d).map(|_| rng.random_range(-1.2..1.2)).collect();
+                    t.nearest(&q, 9, u32::MAX, &mut out);
+                    let want = brute(pts_now, d, &q, u32::MAX);
+                    let g: Vec<f64> = out.iter().map(|e| e.1).collect();
+                    let w: Vec<f64> = want[..9].iter().map(|e| e.1).collect();
+                    assert_eq!(g, w, "d {d}");
+                }
+            }
+            assert_eq!(t.len(), n);
+        }
+    }
+}
