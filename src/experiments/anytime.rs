@@ -131,7 +131,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             refiner.set_belief(&live.belief());
             let fresh = refiner.is_empty();
             refiner.work(work)?;
-            if fresh || k % publish == 0 {
+            // As the filter stage: a version being prepared is finished first.
+            if (fresh || k % publish == 0) && !live.has_pending() {
                 let mut buf =
                     vec![0u64; refiner.snapshot_words().max(words_needed(dims.state, 0, 0))];
                 refiner.write_snapshot(&mut buf, 0)?;

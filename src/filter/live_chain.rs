@@ -63,6 +63,10 @@ use crate::{MAX_CONTROL, MAX_OBS, MAX_STATE};
 const HALF_LOG_2PI: f64 = 0.918_938_533_204_672_8;
 /// Posterior mass flushed to zero after an update (see `chain_filter`).
 const FLUSH: f64 = 1e-150;
+/// ... and below this fraction of the largest posterior mass (≈ 7.4 σ out
+/// for a Gaussian): the states outside the belief's support then cost
+/// nothing in the update, the moments and the control's transport.
+const FLUSH_REL: f64 = 1e-12;
 /// The accumulated control displacement is transported once it makes the
 /// fastest active state jump with this probability (see `transport_by`).
 const TRANSPORT_MIN_JUMP: f64 = 1.0;
@@ -98,7 +102,14 @@ struct Lik {
 
 struct Pending<S> {
     snap: S,
+    /// Next state whose g(z) is computed (phase 1).
     next: usize,
+    /// Next state whose control-transport rates are prepared (phase 2).
+    next_tr: usize,
+    /// Phase 2 started: indices mapped to the active version's.
+    mapped: bool,
+    /// The active version has the same lineage (its rates can be reused).
+    reuse: bool,
     buf: usize,
     prepare_ns: u64,
 }
@@ -122,7 +133,19 @@ pub struct LiveChainFilter<M: SdeModel, S: AsRef<[u64]>> {
     phi: Vec<f64>,
     tmp: Vec<f64>,
     aux: Vec<f64>,
-    transport: ControlTransport,
+    /// The control's transport rates per buffer (active, pending).
+    transport: [ControlTransport; 2],
+    /// Signed axes the control moves (`2i`, `2i + 1` for ±e_i): their rates
+    /// are prepared with each version.
+    ctrl_slots: Vec<usize>,
+    /// Index maps between the active and the pending version (by id).
+    o2n: Vec<u32>,
+    n2o: Vec<u32>,
+    /// Relative flush of the posterior (see [`FLUSH_REL`]).
+    flush_rel: f64,
+    /// Mean of the mass function (without the pending displacement) after
+    /// the last update, when valid.
+    mass_mean: Option<[f64; MAX_STATE]>,
     /// Control displacement accumulated but not yet transported (the mass
     /// is moved in pieces of about one jump length; see `predict`).
     pending_d: [f64; MAX_STATE],
@@ -188,6 +211,27 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         let dims = model.dims();
         fallback.reset(t0, prior);
         let n = max_states.max(1);
+        // The axes a unit control moves at the prior mean (the ship: the
+        // velocities); for a control-affine model with constant B these are
+        // the only axes v = f(x, u) − f(x, u₀) ever has.
+        let (d, nu) = (dims.state, dims.control);
+        let mut f0 = [0.0; MAX_STATE];
+        let mut f1 = [0.0; MAX_STATE];
+        let mut moved = [false; MAX_STATE];
+        let zero = [0.0; MAX_CONTROL];
+        model.drift(&prior.mean[..d], &zero[..nu], &mut f0[..d]);
+        for c in 0..nu {
+            let mut u = [0.0; MAX_CONTROL];
+            u[c] = 1.0;
+            model.drift(&prior.mean[..d], &u[..nu], &mut f1[..d]);
+            for i in 0..d {
+                moved[i] |= (f1[i] - f0[i]).abs() > 1e-12 || !(f1[i] - f0[i]).is_finite();
+            }
+        }
+        let ctrl_slots = (0..d)
+            .filter(|&i| moved[i])
+            .flat_map(|i| [2 * i, 2 * i + 1])
+            .collect();
         Self {
             model,
             dims,
@@ -202,7 +246,15 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             phi: Vec::with_capacity(n),
             tmp: Vec::with_capacity(n),
             aux: Vec::with_capacity(n),
-            transport: ControlTransport::new(dims.state, n),
+            transport: [
+                ControlTransport::new(dims.state, n),
+                ControlTransport::new(dims.state, n),
+            ],
+            ctrl_slots,
+            o2n: vec![u32::MAX; n],
+            n2o: vec![u32::MAX; n],
+            mass_mean: None,
+            flush_rel: FLUSH_REL,
             pending_d: [0.0; MAX_STATE],
             t: t0,
             last: *prior,
@@ -234,6 +286,9 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         self.pending = Some(Pending {
             snap,
             next: 0,
+            next_tr: 0,
+            mapped: false,
+            reuse: false,
             buf,
             prepare_ns: 0,
         });
@@ -272,7 +327,53 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
                     .obs_mean(view.state(i), &mut g[i * m..(i + 1) * m]);
             }
             p.next = hi;
-            if t0.elapsed() >= budget && p.next < n {
+            if t0.elapsed() >= budget {
+                p.prepare_ns += t0.elapsed().as_nanos() as u64;
+                return Ok(None);
+            }
+        }
+        // Phase 2: the control's transport rates of this version (off the
+        // per-observation path): reused by id from the active version where
+        // their targets survive, else solved.
+        if !p.mapped {
+            self.transport[p.buf].reset(n);
+            p.reuse = false;
+            if let Some(act) = self.active.as_ref().filter(|a| a.lineage == view.lineage) {
+                let old = SnapshotView::parse(act.snap.as_ref()).expect("active parses");
+                let n_old = old.len();
+                self.o2n[..n_old].fill(u32::MAX);
+                self.n2o[..n].fill(u32::MAX);
+                let (mut i, mut j) = (0, 0);
+                while i < n_old && j < n {
+                    let (a, b) = (old.ids[i], view.ids[j]);
+                    if a == b {
+                        self.o2n[i] = j as u32;
+                        self.n2o[j] = i as u32;
+                        i += 1;
+                        j += 1;
+                    } else if a < b {
+                        i += 1;
+                    } else {
+                        j += 1;
+                    }
+                }
+                p.reuse = true;
+            }
+            p.mapped = true;
+        }
+        let (lo, hi) = self.transport.split_at_mut(1);
+        let (cur, prev) = if p.buf == 0 {
+            (&mut lo[0], &hi[0])
+        } else {
+            (&mut hi[0], &lo[0])
+        };
+        while p.next_tr < n {
+            let z = p.next_tr;
+            let o = self.n2o[z];
+            let old = (p.reuse && o != u32::MAX).then_some((prev, o as usize, &self.o2n[..]));
+            cur.prepare_state(&view, z, &self.ctrl_slots, old);
+            p.next_tr += 1;
+            if p.next_tr % 16 == 0 && t0.elapsed() >= budget && p.next_tr < n {
                 p.prepare_ns += t0.elapsed().as_nanos() as u64;
                 return Ok(None);
             }
@@ -367,8 +468,8 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             buf: p.buf,
             lineage,
         });
-        self.transport.reset(n_new);
         self.belief.set(None);
+        self.mass_mean = None;
         self.versions += 1;
         SwapInfo {
             swap_ns: t0.elapsed().as_nanos() as u64,
@@ -391,7 +492,13 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
     }
     /// Control-transport rate sets (built, not exact at the chain's border).
     pub fn transport_stats(&self) -> (u64, u64) {
-        (self.transport.built, self.transport.partial)
+        let [a, b] = &self.transport;
+        (a.built + b.built, a.partial + b.partial)
+    }
+    /// Control-transport rate sets whose mean jump misses ±e_i by > 5 %.
+    pub fn transport_off(&self) -> u64 {
+        let [a, b] = &self.transport;
+        a.off + b.off
     }
     /// Times the belief was re-spread after a degenerate update.
     pub fn respreads(&self) -> u64 {
@@ -402,6 +509,19 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         let a = self.active.as_ref()?;
         let v = SnapshotView::parse(a.snap.as_ref()).ok()?;
         Some((v.version, v.len(), v.delta))
+    }
+    /// Tuning for experiments: the relative posterior flush (default
+    /// [`FLUSH_REL`]; 0 keeps every state above the absolute floor) and the
+    /// control transport's two-hop candidates (default off).
+    pub fn set_tuning(&mut self, flush_rel: f64, two_hop: bool) {
+        self.flush_rel = flush_rel.max(0.0);
+        for t in &mut self.transport {
+            t.two_hop = two_hop;
+        }
+    }
+    /// The active snapshot, read in place.
+    pub fn active_view(&self) -> Option<SnapshotView<'_>> {
+        SnapshotView::parse(self.active.as_ref()?.snap.as_ref()).ok()
     }
     /// The mass function on the active snapshot's states.
     pub fn masses(&self) -> &[f64] {
@@ -429,13 +549,13 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
 
     /// Accumulate the displacement v·h and transport it once it is about a
     /// jump length.
-    fn transport_by(&mut self, view: &SnapshotView, v: &[f64], h: f64) {
+    fn transport_by(&mut self, buf: usize, view: &SnapshotView, v: &[f64], h: f64) {
         let d = self.dims.state;
         for k in 0..d {
             self.pending_d[k] += v[k] * h;
         }
         let pd = self.pending_d;
-        if self.transport.apply(
+        if self.transport[buf].apply(
             view,
             &pd[..d],
             1.0,
@@ -485,6 +605,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         self.pending_d = [0.0; MAX_STATE];
         self.respreads += 1;
         self.belief.set(None);
+        self.mass_mean = None;
     }
 
     /// φ ∝ vol(z): the chain's uniform density (last-resort recovery).
@@ -500,6 +621,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         self.pending_d = [0.0; MAX_STATE];
         self.respreads += 1;
         self.belief.set(None);
+        self.mass_mean = None;
     }
 
     fn moments(&self) -> Gaussian {
@@ -544,6 +666,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             self.pending_d = [0.0; MAX_STATE];
         }
         self.belief.set(None);
+        self.mass_mean = None;
     }
 
     /// Propagate to `t` with `u` held.
@@ -564,6 +687,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         // SAFETY: the active snapshot is neither replaced nor dropped in this
         // function (only `swap` replaces it), so its words outlive `view`.
         let view = SnapshotView::parse(unsafe { &*words }).expect("active parses");
+        let buf = act.buf;
         let mut v = [0.0; MAX_STATE];
         self.control_velocity(u, &mut v);
         let n = view.len();
@@ -579,7 +703,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         for _ in 0..whole as usize {
             Self::step(&view, &self.phi, &mut self.tmp);
             std::mem::swap(&mut self.phi, &mut self.tmp);
-            self.transport_by(&view, &v, view.delta);
+            self.transport_by(buf, &view, &v, view.delta);
         }
         if frac > 1e-9 {
             self.tmp.resize(n, 0.0);
@@ -587,7 +711,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             for z in 0..n {
                 self.phi[z] = (1.0 - frac) * self.phi[z] + frac * self.tmp[z];
             }
-            self.transport_by(&view, &v, frac * view.delta);
+            self.transport_by(buf, &view, &v, frac * view.delta);
         }
         self.t = t;
         self.belief.set(None);
@@ -633,10 +757,21 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         y[..m].copy_from_slice(&meas.y[..m]);
         let d = self.dims.state;
         if self.pending_d[..d].iter().any(|v| *v != 0.0) {
-            let xs = self.moments().mean;
-            let mut x0 = xs;
+            // The linearisation point: the mass mean of the last posterior
+            // (one prediction old: the error is second order in D).
+            let x0 = match self.mass_mean {
+                Some(m) => m,
+                None => {
+                    let mut m = self.moments().mean;
+                    for k in 0..d {
+                        m[k] -= self.pending_d[k];
+                    }
+                    m
+                }
+            };
+            let mut xs = x0;
             for k in 0..d {
-                x0[k] -= self.pending_d[k];
+                xs[k] += self.pending_d[k];
             }
             let (mut g1, mut g0, mut dg) = ([0.0; MAX_OBS], [0.0; MAX_OBS], [0.0; MAX_OBS]);
             self.model.obs_mean(&xs[..d], &mut g1[..m]);
@@ -657,7 +792,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             self.spread_by_volume();
             r = self.weigh(buf, &lk, &meas.y[..m]);
         }
-        let Some((lmax, sum)) = r else {
+        let Some((lmax, sum, tmax)) = r else {
             // No state of the chain at all (cannot happen on a parsed
             // snapshot): keep the prediction.
             self.last = self.moments();
@@ -665,18 +800,31 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         };
         let n = self.phi.len();
         let inv = 1.0 / sum;
+        let thr = FLUSH.max(self.flush_rel * tmax * inv);
         let mut s2 = 0.0;
+        // Normalise, flush and accumulate the moments in one pass.
+        let act = self.active.as_ref().expect("checked above");
+        let view = SnapshotView::parse(act.snap.as_ref()).expect("active parses");
+        let mut acc = WeightedMoments::new(&self.last.mean[..d]);
         for z in 0..n {
             let mut w = self.tmp[z] * inv;
-            if w < FLUSH {
+            if w < thr {
                 w = 0.0;
+            } else {
+                s2 += w * w;
+                acc.add(w, view.state(z));
             }
             self.phi[z] = w;
-            s2 += w * w;
         }
-        self.belief.set(None);
-        self.last = self.moments();
-        self.belief.set(Some(self.last));
+        let mut g = acc.gaussian();
+        let mut mm = [0.0; MAX_STATE];
+        mm[..d].copy_from_slice(&g.mean[..d]);
+        self.mass_mean = Some(mm);
+        for k in 0..d {
+            g.mean[k] += self.pending_d[k];
+        }
+        self.last = g;
+        self.belief.set(Some(g));
         Ok(UpdateInfo {
             log_evidence: lmax + sum.ln() + cst,
             ess: 1.0 / s2,
@@ -685,8 +833,8 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
     }
 
     /// tmp ← φ(z)·p(y|z)/exp(l_max) over the states with mass; returns
-    /// (l_max, Σ tmp), or None when nothing is left (degenerate).
-    fn weigh(&mut self, buf: usize, lk: &Lik, y: &[f64]) -> Option<(f64, f64)> {
+    /// (l_max, Σ tmp, max tmp), or None when nothing is left (degenerate).
+    fn weigh(&mut self, buf: usize, lk: &Lik, y: &[f64]) -> Option<(f64, f64, f64)> {
         let m = self.dims.obs;
         let g = &self.obs_mean[buf];
         let n = self.phi.len();
@@ -708,7 +856,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             self.aux[z] = -0.5 * q;
             lmax = lmax.max(-0.5 * q);
         }
-        let mut sum = 0.0;
+        let (mut sum, mut tmax) = (0.0, 0.0f64);
         self.tmp.clear();
         self.tmp.resize(n, 0.0);
         if lmax.is_finite() {
@@ -721,9 +869,10 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
                 };
                 self.tmp[z] = w;
                 sum += w;
+                tmax = tmax.max(w);
             }
         }
-        (sum > 0.0 && sum.is_finite()).then_some((lmax, sum))
+        (sum > 0.0 && sum.is_finite()).then_some((lmax, sum, tmax))
     }
 
     /// Mean and covariance of the belief.
@@ -1046,7 +1195,9 @@ mod tests {
                 break;
             }
         }
-        assert_eq!(calls, 1200usize.div_ceil(CHUNK));
+        // Phase 1 (g(z)) in chunks of CHUNK states, phase 2 (the control's
+        // transport rates) in pieces of 16.
+        assert_eq!(calls, 1200usize.div_ceil(CHUNK) + 1200usize.div_ceil(16));
         assert_eq!(lf.active_info().map(|a| a.1), Some(1200));
         let mut bad = snap.clone();
         bad[0] = 0;

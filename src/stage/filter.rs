@@ -235,15 +235,21 @@ impl Backend {
     }
 }
 
-/// Take the newest snapshot from `sub` (if any) and prepare a pending one
-/// for at most `budget`; record swaps in `m`.
+/// Take the newest snapshot from `sub` (if any, and none is being
+/// prepared) and prepare a pending one for at most `budget`; record swaps in
+/// `m`. A version being prepared is finished before a newer one is taken
+/// (the channel keeps the latest): replacing it would restart its
+/// preparation, and a preparation longer than the publish period would
+/// then never finish.
 fn chain_work(
     f: &mut LiveChainFilter<AnyModel, SliceSample<u64>>,
     sub: &SliceSubscriber<u64>,
     budget: Duration,
     m: &mut Metrics,
 ) -> Result<(), StageError> {
-    if let Some(s) = sub.receive_sample()? {
+    if f.has_pending() {
+        // finish it first
+    } else if let Some(s) = sub.receive_sample()? {
         if f.offer(s).is_err() {
             m.reject(Reason::Snapshot as usize);
         }
