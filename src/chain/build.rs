@@ -179,9 +179,9 @@ impl Chain {
         c.index = SpatialIndex::from_points(d, points).ok_or(ChainError::State(
             "kd-tree cannot store the states (too many share coordinate values)",
         ))?;
-        if c.rtree.is_some() {
-            c.rtree = Some(KnnTree::from_points(d, points));
-        }
+        // The reverse-query tree serves incremental insertion only; it is
+        // built from the lists at the first `add_state` (batch pays nothing).
+        c.rtree = None;
         // ConnectState in a space-filling-curve order of the states: each
         // row depends only on the states, so the order changes no result,
         // but consecutive k-d tree queries then touch the same leaves.
@@ -235,6 +235,7 @@ impl Chain {
         x: &[f64],
         reconnected: &mut Vec<u32>,
     ) -> Result<u32, ChainError> {
+        self.ensure_rtree();
         let slot = self.push_state(model, x)?;
         if self.index.insert(x, slot as u32).is_err() {
             self.pop_state();
@@ -673,6 +674,27 @@ impl Chain {
     }
 
     /// Whether Near sets are kept as exact lists (k-NN rule, no advection).
+    /// Build the reverse-query tree if the k-NN lists need it and it is not
+    /// there (after `batch` or `from_view`): every state, each bounded by
+    /// the k-th squared distance of its list when the list is of the
+    /// current k (0 otherwise, as `keep_list` sets it).
+    fn ensure_rtree(&mut self) {
+        if !self.lists_enabled() || self.rtree.is_some() {
+            return;
+        }
+        let mut t = KnnTree::from_points(self.dim, &self.states);
+        for i in 0..self.len() {
+            let k = self.near_k[i] as usize;
+            let b = if k > 0 {
+                self.near_lists.row(i).1.get(k - 1).copied().unwrap_or(0.0)
+            } else {
+                0.0
+            };
+            t.set_bound(i as u32, b);
+        }
+        self.rtree = Some(t);
+    }
+
     fn lists_enabled(&self) -> bool {
         matches!(self.cfg.near, NearRule::Knn { .. }) && self.cfg.step.is_none()
     }
@@ -840,9 +862,8 @@ impl Chain {
         c.trans = super::storage::Transitions::from_csr(view.row_offsets, view.cols, view.probs);
         c.index =
             SpatialIndex::from_points(c.dim, view.states).ok_or(ChainError::Dimension(c.dim))?;
-        if c.rtree.is_some() {
-            c.rtree = Some(KnnTree::from_points(c.dim, view.states));
-        }
+        // Built at the first `add_state` (see `ensure_rtree`).
+        c.rtree = None;
         Ok(c)
     }
 
