@@ -10,9 +10,9 @@
 //! and versions of the live chain.
 
 use super::chain_util::Params;
+use super::refine_sim::SimRefine;
 use super::{ExperimentArgs, ExperimentReport, Row};
 use crate::belief::Gaussian;
-use crate::chain::snapshot::words_needed;
 use crate::control::cost::TrackingCost;
 use crate::control::mppi::Mppi;
 use crate::control::waypoints::WaypointTracker;
@@ -27,7 +27,7 @@ use crate::pipeline::config::ControlBackend;
 use crate::pipeline::{config, PipelineConfig};
 use crate::stage::control::implicit_controller;
 use crate::stage::filter::{make_filter, prior};
-use crate::stage::refine::{chain_config, Refiner};
+use crate::stage::refine::chain_config;
 use crate::MAX_STATE;
 use anyhow::Result;
 use std::time::Duration;
@@ -119,7 +119,7 @@ pub fn closed_loop(
     };
 
     // Live chain: refine and filter interleaved in simulated time.
-    let mut refiner = Refiner::new(&cfg, 1)?;
+    let mut refine = SimRefine::new(&cfg, dt, dims.state, work)?;
     let mut live: LiveChainFilter<_, Vec<u64>> = LiveChainFilter::new(
         model.clone(),
         make_filter(&cfg, 0.0)?,
@@ -127,25 +127,11 @@ pub fn closed_loop(
         &prior,
         0.0,
     );
-    let period = (cfg.refine.period_ms * 1e-3 / dt).round().max(1.0) as usize;
-    let publish = (cfg.refine.publish_period_ms * 1e-3 / dt).round().max(1.0) as usize;
-    let work = work.unwrap_or(Duration::from_secs_f64(cfg.refine.work_ms * 1e-3));
     let prepare = Duration::from_secs_f64(cfg.filter.chain.prepare_budget_us * 1e-6);
     let (mut pos, mut vel) = (0.0, 0.0);
     for k in 0..steps {
         let t = (k + 1) as f64 * dt;
-        if k % period == 0 {
-            refiner.set_belief_at(&live.belief(), k as f64 * dt);
-            let fresh = refiner.is_empty();
-            refiner.work(work)?;
-            // As the filter stage: a version being prepared is finished first.
-            if (fresh || k % publish == 0) && !live.has_pending() {
-                let mut buf =
-                    vec![0u64; refiner.snapshot_words().max(words_needed(dims.state, 0, 0))];
-                refiner.write_snapshot(&mut buf, 0)?;
-                live.offer(buf)?;
-            }
-        }
+        refine.tick(k, &mut live)?;
         live.predict(t, &us[k])?;
         if live.update(&Measurement::full(&ys[k])).is_err() {
             out.refused += 1;
@@ -405,7 +391,7 @@ pub fn closed_loop_controller(
 
     // The chain filter's loop: refine and filter interleaved in simulated
     // time, as in `closed_loop`.
-    let mut refiner = Refiner::new(&cfg, 1)?;
+    let mut refine = SimRefine::new(&cfg, dt, dims.state, work)?;
     let mut live: LiveChainFilter<_, Vec<u64>> = LiveChainFilter::new(
         model.clone(),
         make_filter(&cfg, 0.0)?,
@@ -413,9 +399,6 @@ pub fn closed_loop_controller(
         &prior,
         0.0,
     );
-    let period = (cfg.refine.period_ms * 1e-3 / dt).round().max(1.0) as usize;
-    let publish = (cfg.refine.publish_period_ms * 1e-3 / dt).round().max(1.0) as usize;
-    let work = work.unwrap_or(Duration::from_secs_f64(cfg.refine.work_ms * 1e-3));
     let prepare = Duration::from_secs_f64(cfg.filter.chain.prepare_budget_us * 1e-6);
     live.set_tuning(tuning.0, tuning.1);
     let mut step_us = Vec::with_capacity(steps);
@@ -423,17 +406,7 @@ pub fn closed_loop_controller(
     let (mut mass_lost_max, mut from_gaussian_swaps) = (0.0f64, 0u64);
     let (mut prep_us, mut swap_us) = (vec![], vec![]);
     let mut filter_chain = |k: usize, t: f64, u: &[f64], y: &[f64]| -> Result<Gaussian> {
-        if k.is_multiple_of(period) {
-            refiner.set_belief_at(&live.belief(), k as f64 * dt);
-            let fresh = refiner.is_empty();
-            refiner.work(work)?;
-            if (fresh || k.is_multiple_of(publish)) && !live.has_pending() {
-                let mut buf =
-                    vec![0u64; refiner.snapshot_words().max(words_needed(dims.state, 0, 0))];
-                refiner.write_snapshot(&mut buf, 0)?;
-                live.offer(buf)?;
-            }
-        }
+        refine.tick(k, &mut live)?;
         let t0 = crate::rt::clock::thread_cpu_ns();
         live.predict(t, u)?;
         let _ = live.update(&Measurement::full(y));
@@ -558,7 +531,7 @@ pub fn closed_loop_controller(
         out.frac_speed_outside_pf = outside as f64 / steps as f64;
         out.speed_max_pf = smax;
         // The live chain (with refine) on the PF loop's record.
-        let mut refiner = Refiner::new(&cfg, 1)?;
+        let mut refine = SimRefine::new(&cfg, dt, dims.state, work)?;
         let mut live: LiveChainFilter<_, Vec<u64>> = LiveChainFilter::new(
             model.clone(),
             make_filter(&cfg, 0.0)?,
@@ -570,17 +543,7 @@ pub fn closed_loop_controller(
         let (mut p2, mut v2) = (0.0, 0.0);
         for k in 0..steps {
             let t = (k + 1) as f64 * dt;
-            if k % period == 0 {
-                refiner.set_belief_at(&live.belief(), k as f64 * dt);
-                let fresh = refiner.is_empty();
-                refiner.work(work)?;
-                if (fresh || k % publish == 0) && !live.has_pending() {
-                    let mut buf =
-                        vec![0u64; refiner.snapshot_words().max(words_needed(dims.state, 0, 0))];
-                    refiner.write_snapshot(&mut buf, 0)?;
-                    live.offer(buf)?;
-                }
-            }
+            refine.tick(k, &mut live)?;
             live.predict(t, &pu[k])?;
             let _ = live.update(&Measurement::full(&py[k]));
             live.advance(prepare)?;

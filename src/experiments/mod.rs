@@ -16,6 +16,7 @@ pub mod double_slit;
 pub mod himmelblau;
 pub mod param_estimation;
 pub mod pi_common;
+pub mod refine_sim;
 pub mod report;
 pub mod ship;
 pub mod ship_control;
