@@ -343,29 +343,12 @@ impl KnnTree {
             let base = leaf * BUCKET;
             for pos in 0..len {
                 let e = base + pos;
-                let p = &self.coords[e * d..(e + 1) * d];
-                let mut d2 = 0.0;
-                for c in 0..d {
-                    let t = p[c] - q[c];
-                    d2 += t * t;
-                }
+                let d2 = sq_dist(&self.coords[e * d..(e + 1) * d], q);
                 let slot = self.slots[e];
                 if slot == skip {
                     continue;
                 }
-                if out.len() == k {
-                    if !(d2 < out[k - 1].1) {
-                        continue;
-                    }
-                    out.pop();
-                }
-                let mut i = out.len();
-                out.push((slot, d2));
-                while i > 0 && out[i - 1].1 > d2 {
-                    out[i] = out[i - 1];
-                    i -= 1;
-                }
-                out[i] = (slot, d2);
+                offer_nearest(out, k, slot, d2);
             }
             return;
         }
@@ -429,12 +412,7 @@ impl KnnTree {
             let mut m = 0.0f64;
             for pos in 0..len {
                 let e = base + pos;
-                let p = &self.coords[e * d..(e + 1) * d];
-                let mut d2 = 0.0;
-                for c in 0..d {
-                    let t = p[c] - q[c];
-                    d2 += t * t;
-                }
+                let d2 = sq_dist(&self.coords[e * d..(e + 1) * d], q);
                 if d2 < self.bounds[e] {
                     self.bounds[e] = visit(self.slots[e], d2, self.bounds[e]);
                 }
@@ -443,19 +421,7 @@ impl KnnTree {
                 if k == 0 || slot == skip {
                     continue;
                 }
-                if out.len() == k {
-                    if !(d2 < out[k - 1].1) {
-                        continue;
-                    }
-                    out.pop();
-                }
-                let mut i = out.len();
-                out.push((slot, d2));
-                while i > 0 && out[i - 1].1 > d2 {
-                    out[i] = out[i - 1];
-                    i -= 1;
-                }
-                out[i] = (slot, d2);
+                offer_nearest(out, k, slot, d2);
             }
             self.nodes[node].max_b = m;
             return;
@@ -483,6 +449,31 @@ impl KnnTree {
             + (self.slots.capacity() + self.lens.capacity() + self.leaf_node.capacity()) * 4
             + self.loc.capacity() * 8
     }
+}
+
+/// Squared Euclidean distance.
+#[inline]
+fn sq_dist(p: &[f64], q: &[f64]) -> f64 {
+    p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum()
+}
+
+/// Insert (slot, d2) into `out`, the up to `k` nearest so far sorted by
+/// squared distance, if it is nearer than the k-th (ties keep the earlier).
+#[inline]
+fn offer_nearest(out: &mut Vec<(u32, f64)>, k: usize, slot: u32, d2: f64) {
+    if out.len() == k {
+        if !(d2 < out[k - 1].1) {
+            return;
+        }
+        out.pop();
+    }
+    let mut i = out.len();
+    out.push((slot, d2));
+    while i > 0 && out[i - 1].1 > d2 {
+        out[i] = out[i - 1];
+        i -= 1;
+    }
+    out[i] = (slot, d2);
 }
 
 #[cfg(test)]

@@ -19,7 +19,7 @@
 //! stage loops": the multi-process run is `beliefbus run`; this experiment
 //! isolates the anytime behaviour.)
 
-use super::chain_util::{predictive_points, Params};
+use super::chain_util::{predictive_points, split_config_param, Params};
 use super::{ExperimentArgs, ExperimentReport, Row};
 use crate::belief::Gaussian;
 use crate::chain::snapshot::words_needed;
@@ -43,22 +43,7 @@ fn se_pos(g: &Gaussian, x: &[f64]) -> f64 {
 
 pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let mut rep = ExperimentReport::new("anytime");
-    let path = args
-        .params
-        .iter()
-        .rev()
-        .find(|(k, _)| k == "config")
-        .map(|(_, v)| v.clone())
-        .unwrap_or_else(|| "configs/default.toml".into());
-    let rest = ExperimentArgs {
-        params: args
-            .params
-            .iter()
-            .filter(|(k, _)| k != "config")
-            .cloned()
-            .collect(),
-        ..args.clone()
-    };
+    let (path, rest) = split_config_param(args);
     let mut p = Params::new(&rest);
     let seconds = p.usize(&mut rep, "seconds", 20)?;
     // Known control force (all filters are given it): amplitude a of

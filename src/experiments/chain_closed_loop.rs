@@ -9,7 +9,7 @@
 //! same record. Rows: RMS position / velocity error per filter, re-spreads
 //! and versions of the live chain.
 
-use super::chain_util::Params;
+use super::chain_util::{split_config_param, Params};
 use super::refine_sim::SimRefine;
 use super::{ExperimentArgs, ExperimentReport, Row};
 use crate::belief::Gaussian;
@@ -602,22 +602,7 @@ pub fn closed_loop_controller(
 pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let mut rep = ExperimentReport::new("chain-closed-loop");
     // config = FILE: the pipeline config (default configs/default.toml).
-    let path = args
-        .params
-        .iter()
-        .rev()
-        .find(|(k, _)| k == "config")
-        .map(|(_, v)| v.clone())
-        .unwrap_or_else(|| "configs/default.toml".into());
-    let rest = ExperimentArgs {
-        params: args
-            .params
-            .iter()
-            .filter(|(k, _)| k != "config")
-            .cloned()
-            .collect(),
-        ..args.clone()
-    };
+    let (path, rest) = split_config_param(args);
     let mut p = Params::new(&rest);
     let seconds = p.usize(&mut rep, "seconds", 20)?;
     let hold = p.f64(&mut rep, "hold_s", 0.1)?;

@@ -125,6 +125,30 @@ pub struct Record {
     pub ys: Vec<f64>,
 }
 
+/// The pipeline-config path of an experiment that runs a pipeline config
+/// (`--param config=FILE`, the last one wins; default
+/// `configs/default.toml`), and the arguments without it for [`Params`].
+pub fn split_config_param(args: &ExperimentArgs) -> (String, ExperimentArgs) {
+    let path = args
+        .params
+        .iter()
+        .rev()
+        .find(|(k, _)| k == "config")
+        .map(|(_, v)| v.clone())
+        .unwrap_or_else(|| "configs/default.toml".into());
+    let params = args
+        .params
+        .iter()
+        .filter(|(k, _)| k != "config")
+        .cloned()
+        .collect();
+    let rest = ExperimentArgs {
+        params,
+        ..args.clone()
+    };
+    (path, rest)
+}
+
 /// Simulate `steps` observation periods of `dt` from `x0` (Euler–Maruyama
 /// with substeps ≤ `max_dt`, no control), drawing a measurement after each.
 pub fn simulate<M: SdeModel>(

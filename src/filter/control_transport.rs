@@ -425,21 +425,27 @@ mod tests {
     use crate::model::Bounds;
     use nalgebra::DMatrix;
 
-    /// Pure transport of a mass function away from the chain's border:
-    /// the mean moves by exactly v·h (first moment of (1) for any v), mass
-    /// is conserved, and the added spread is numerical diffusion of the
-    /// order of |v| h times the jump length.
-    #[test]
-    fn the_mean_moves_by_exactly_v_h_for_any_control_direction() {
-        let m = LinearSde::new(
-            "t2",
+    /// The 2-D model of these tests: dx = (−x + u) dt + 0.5 dw, observed
+    /// y = x with noise sd 0.2, on [−3, 3]².
+    fn ou2(name: &str) -> LinearSde {
+        LinearSde::new(
+            name,
             DMatrix::from_row_slice(2, 2, &[-1.0, 0.0, 0.0, -1.0]),
             DMatrix::identity(2, 2),
             DMatrix::identity(2, 2) * 0.5,
             DMatrix::identity(2, 2),
             vec![0.2, 0.2],
             Bounds::new_box(&[-3.0, -3.0], &[3.0, 3.0]).unwrap(),
-        );
+        )
+    }
+
+    /// Pure transport of a mass function away from the chain's border:
+    /// the mean moves by exactly v·h (first moment of (1) for any v), mass
+    /// is conserved, and the added spread is numerical diffusion of the
+    /// order of |v| h times the jump length.
+    #[test]
+    fn the_mean_moves_by_exactly_v_h_for_any_control_direction() {
+        let m = ou2("t2");
         let mut c = Chain::new(&m, ChainConfig::moment_matched(2)).unwrap();
         c.grow(
             &m,
@@ -507,15 +513,7 @@ mod tests {
     /// broken rate sets are solved.
     #[test]
     fn rates_carried_to_a_new_version_by_id_stay_exact() {
-        let m = LinearSde::new(
-            "t2r",
-            DMatrix::from_row_slice(2, 2, &[-1.0, 0.0, 0.0, -1.0]),
-            DMatrix::identity(2, 2),
-            DMatrix::identity(2, 2) * 0.5,
-            DMatrix::identity(2, 2),
-            vec![0.2, 0.2],
-            Bounds::new_box(&[-3.0, -3.0], &[3.0, 3.0]).unwrap(),
-        );
+        let m = ou2("t2r");
         let mut c = Chain::new(&m, ChainConfig::moment_matched(2)).unwrap();
         // The chain of the test above (3000 uniform states, same stream),
         // where one-hop rate sets are exact away from the border.
