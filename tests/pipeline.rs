@@ -139,6 +139,17 @@ fn the_closed_loop_runs_across_five_processes_and_leaves_nothing_behind() {
     let acc = &r["accuracy"];
     assert!(acc["rmse_position"].as_f64().unwrap() < acc["rmse_position_raw"].as_f64().unwrap());
     assert_eq!(r["stages"]["ingest"]["rejected"], 0);
+    // Every observation ingest published was counted by the filter
+    // (processed, dropped by reason or rejected); the plant stops first, so
+    // at most what ingest still held can have been in flight at the stop.
+    let obs = &r["streams"]["observations"];
+    let unaccounted = obs["unaccounted"].as_i64().unwrap();
+    assert_eq!(
+        obs["published"].as_i64().unwrap(),
+        obs["counted"].as_i64().unwrap() + unaccounted,
+        "{obs}"
+    );
+    assert!((0..=16).contains(&unaccounted), "{obs}");
     // The status lines and the tables were printed.
     assert!(stderr(&o).contains("sensor->control p50"), "{}", stderr(&o));
     let table = String::from_utf8_lossy(&o.stdout);

@@ -232,6 +232,28 @@ fn every_stage_killed_in_turn_and_a_hung_filter_recover_and_leave_nothing_behind
     );
     let a = &r["accuracy"];
     assert!(a["rmse_position"].as_f64().unwrap() < a["rmse_position_raw"].as_f64().unwrap());
+    // The observation books balance, and what the two dead filters could
+    // never count is reported, not lost: each was down for at least a
+    // restart (process start, node and ports), many sensor periods.
+    let obs = &r["streams"]["observations"];
+    let published = obs["published"].as_i64().unwrap();
+    let counted = obs["counted"].as_i64().unwrap();
+    let unaccounted = obs["unaccounted"].as_i64().unwrap();
+    assert_eq!(published, counted + unaccounted, "{obs}");
+    let f = &r["stages"]["filter"];
+    assert_eq!(
+        counted,
+        f["processed"].as_i64().unwrap()
+            + f["dropped"].as_i64().unwrap()
+            + f["rejected"].as_i64().unwrap(),
+        "{obs} {f}"
+    );
+    assert_eq!(
+        published,
+        r["stages"]["ingest"]["processed"].as_i64().unwrap()
+    );
+    assert!(unaccounted > 0, "{obs}");
+    assert!(unaccounted < published / 2, "{obs}");
     assert!(shm_files(&prefix).is_empty(), "{:?}", shm_files(&prefix));
     assert!(beliefbus::ipc::cleanup::resources(&prefix).is_empty());
 }

@@ -226,6 +226,7 @@ impl ReportInput {
                     opt(ctl.filter(|c| c.compute.count > 0).map(|c| us(c.compute.p99_ns))),
             },
             "chain": self.chain_json(),
+            "streams": self.streams_json(),
             "shared_memory": {
                 "files_removed": self.files_removed,
                 "files_left": self.files_left,
@@ -255,6 +256,35 @@ impl ReportInput {
             "published": r.map(|s| s.chain_versions).unwrap_or(0),
             "refine_states": r.map(|s| s.chain_states).unwrap_or(0),
         })
+    }
+
+    /// The observation stream's books: `published` (ingest's sends, over
+    /// every incarnation) = `counted` (the filter's processed + dropped +
+    /// rejected, over every incarnation) + `unaccounted`. A clean run ends
+    /// with `unaccounted` near 0 (a few in flight at the stop); a filter
+    /// restart adds what its dead incarnation held in its queue, what was
+    /// published while no filter was subscribed, and what it processed
+    /// after its last stats report — no incarnation can count those, so
+    /// the report counts them here instead of losing them silently. `null`
+    /// without both stages' stats (an external ingest or filter).
+    pub fn observation_books(&self) -> Option<(u64, u64, i64)> {
+        let i = self.stats(StageKind::Ingest)?;
+        let f = self.stats(StageKind::Filter)?;
+        let counted = f.processed + f.dropped + f.rejected;
+        Some((i.processed, counted, i.processed as i64 - counted as i64))
+    }
+
+    fn streams_json(&self) -> Value {
+        match self.observation_books() {
+            Some((published, counted, unaccounted)) => json!({
+                "observations": {
+                    "published": published,
+                    "counted": counted,
+                    "unaccounted": unaccounted,
+                }
+            }),
+            None => json!({ "observations": Value::Null }),
+        }
     }
 
     /// The latency and stage tables printed at the end of a run.
@@ -365,6 +395,11 @@ impl ReportInput {
                     ));
                 }
             }
+        }
+        if let Some((published, counted, unaccounted)) = self.observation_books() {
+            out.push_str(&format!(
+                "observations: {published} published, {counted} counted by the filter, {unaccounted} unaccounted (in flight at the stop, or lost with a dead filter)\n"
+            ));
         }
         out
     }
