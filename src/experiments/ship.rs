@@ -35,10 +35,12 @@
 //! the runs, and the notes the paired per-run differences chain − PF and
 //! EKF − chain with theirs.
 //!
-//! Measured with these defaults (100 runs; seed 1 / seed 2; ± 95 % CI):
-//! chain 0.492 ± 0.030 / 0.461 ± 0.021, PF-100 0.547 ± 0.037 /
-//! 0.509 ± 0.027, EKF 1.60 ± 0.13 / 1.48 ± 0.13, UKF 0.415 ± 0.016 /
-//! 0.409 ± 0.015; paired chain − PF −0.055 ± 0.029 / −0.048 ± 0.028. So
+//! Measured with these defaults (100 runs; seeds 1 / 2 / 3; ± 95 % CI):
+//! chain 0.492 ± 0.030 / 0.461 ± 0.021 / 0.454 ± 0.022, PF-100
+//! 0.547 ± 0.037 / 0.509 ± 0.027 / 0.510 ± 0.026, EKF 1.60 ± 0.13 /
+//! 1.48 ± 0.13 / 1.44 ± 0.11, UKF 0.415 ± 0.016 / 0.409 ± 0.015 /
+//! 0.396 ± 0.014; paired chain − PF −0.055 ± 0.029 / −0.048 ± 0.028 /
+//! −0.056 ± 0.025. So
 //! chain ≈ PF (the chain ≈ 10 % lower), the EKF ≈ 3× worse; the UKF, not
 //! in the paper, is best (its sigma points straddle the origin).
 //!
