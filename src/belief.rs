@@ -135,6 +135,27 @@ impl WeightedMoments {
         }
     }
 
+    /// [`Self::add`] for a dimension `D` known at compile time (the same
+    /// arithmetic in the same order, so the same result, with the loops
+    /// unrolled); `D` must equal the accumulator's dimension.
+    #[inline(always)]
+    pub fn add_fixed<const D: usize>(&mut self, w: f64, z: &[f64]) {
+        debug_assert_eq!(D, self.d);
+        let z = &z[..D];
+        self.tot += w;
+        let mut dz = [0.0; D];
+        for a in 0..D {
+            dz[a] = z[a] - self.c[a];
+            self.m1[a] += w * dz[a];
+        }
+        for a in 0..D {
+            let wa = w * dz[a];
+            for b in a..D {
+                self.m2[a + b * D] += wa * dz[b];
+            }
+        }
+    }
+
     /// The Gaussian with the accumulated mean and covariance.
     pub fn gaussian(&self) -> Gaussian {
         let d = self.d;

@@ -72,8 +72,31 @@ const HALF_LOG_2PI: f64 = 0.918_938_533_204_672_8;
 pub const FLUSH_MASS: f64 = 1e-9;
 
 /// Number of exponent buckets of the flush histogram: weights are ≤ 1
-/// after the update's max-shift, so biased exponents are ≤ 1023.
+/// (φ ≤ 1 times a likelihood factor exp(l − shift) ≤ 1), so biased
+/// exponents are ≤ 1023.
 const EXP_BUCKETS: usize = 1024;
+
+/// Below this sum of unshifted weights φ·exp(l) the update redoes the pass
+/// shifted by max l (the unshifted products lose precision as they near
+/// the subnormal range).
+const MIN_UNSHIFTED_SUM: f64 = 1e-250;
+
+/// The observed components and their inverse variances.
+struct ObsTerms {
+    idx: [usize; MAX_OBS],
+    inv_var: [f64; MAX_OBS],
+    nm: usize,
+}
+
+/// What the weighting pass of an update found.
+struct Weighed {
+    sum: f64,
+    wmax: f64,
+    lmax: f64,
+    /// Range of histogram buckets touched (empty when lo > hi).
+    lo: usize,
+    hi: usize,
+}
 
 /// How an update flushes small posterior masses.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -120,6 +143,10 @@ pub struct ChainFilter<M: SdeModel> {
     exp_hist: Box<[f64; EXP_BUCKETS]>,
     discarded_last: f64,
     discarded_total: f64,
+    /// Σ over updates of the support after the update's flush, and the
+    /// number of updates (for [`ChainFilter::mean_support`]).
+    support_sum: u64,
+    updates: u64,
 }
 
 impl<M: SdeModel> ChainFilter<M> {
@@ -161,6 +188,8 @@ impl<M: SdeModel> ChainFilter<M> {
             exp_hist: Box::new([0.0; EXP_BUCKETS]),
             discarded_last: 0.0,
             discarded_total: 0.0,
+            support_sum: 0,
+            updates: 0,
         };
         f.refresh_obs_means(0);
         f.tilt_probs.resize(f.chain.nnz(), 0.0);
@@ -252,6 +281,12 @@ impl<M: SdeModel> ChainFilter<M> {
     /// Number of states carrying mass.
     pub fn support(&self) -> usize {
         self.active.len()
+    }
+
+    /// Mean support after an update's flush over every update since
+    /// construction (what the per-step cost scales with).
+    pub fn mean_support(&self) -> f64 {
+        self.support_sum as f64 / self.updates.max(1) as f64
     }
 
     fn rebuild_active(&mut self) {
@@ -435,6 +470,98 @@ impl<M: SdeModel> ChainFilter<M> {
             .set_jump_probs(view.holding, view.row_offsets, &self.tilt_probs);
     }
 
+    /// The update's weighting pass over the support: `ll[j]` ← w =
+    /// φ(z) exp(l(z) − shift), with the mass histogram of the weights'
+    /// exponents when the flush is mass-bounded.
+    fn weigh(&mut self, y: &[f64], lik: &ObsTerms, shift: f64) -> Weighed {
+        let m = self.dims.obs;
+        let mass_rule = matches!(self.flush, Flush::Mass(_));
+        let mut r = [0.0; MAX_OBS];
+        let mut out = Weighed {
+            sum: 0.0,
+            wmax: 0.0,
+            lmax: f64::NEG_INFINITY,
+            lo: EXP_BUCKETS,
+            hi: 0,
+        };
+        for (j, &zi) in self.active.iter().enumerate() {
+            let z = zi as usize;
+            let g = &self.obs_mean[z * m..(z + 1) * m];
+            self.model.obs_residual(y, g, &mut r[..m]);
+            let mut q = 0.0;
+            for k in 0..lik.nm {
+                let ri = r[lik.idx[k]];
+                q += ri * ri * lik.inv_var[k];
+            }
+            let l = -0.5 * q;
+            out.lmax = out.lmax.max(l);
+            let a = l - shift;
+            // exp(−700) ≈ 1e-304: below that the result is zero or subnormal.
+            let w = if a > -700.0 {
+                self.phi[z] * a.exp()
+            } else {
+                0.0
+            };
+            self.ll[j] = w;
+            out.sum += w;
+            out.wmax = out.wmax.max(w);
+            if mass_rule {
+                // w ≤ 1: biased exponent ≤ 1023
+                let b = ((w.to_bits() >> 52) as usize).min(EXP_BUCKETS - 1);
+                self.exp_hist[b] += w;
+                out.lo = out.lo.min(b);
+                out.hi = out.hi.max(b);
+            }
+        }
+        out
+    }
+
+    /// Zero the histogram buckets a weighting pass touched (the histogram
+    /// is all zero between updates).
+    fn clear_hist(&mut self, w: &Weighed) {
+        if w.lo <= w.hi {
+            self.exp_hist[w.lo..=w.hi].fill(0.0);
+        }
+    }
+
+    /// The update's last pass: normalise, flush weights below `cut`,
+    /// compact the support and accumulate the moments. `D` is the state
+    /// dimension (0: any, read at run time). Returns the dropped
+    /// (unnormalised) mass, Σ w² and the kept support size.
+    fn flush_pass<const D: usize>(
+        &mut self,
+        cut: f64,
+        inv: f64,
+        acc: &mut WeightedMoments,
+    ) -> (f64, f64, usize) {
+        let mut s2 = 0.0;
+        let mut dropped = 0.0;
+        let mut keep = 0;
+        for j in 0..self.active.len() {
+            let z = self.active[j] as usize;
+            let wu = self.ll[j];
+            let mut w = wu * inv;
+            // Zeroing negligible mass keeps predict's products out of
+            // subnormal range (≈100× slower) and the support, hence both
+            // predict and update, on the states that matter.
+            if wu < cut || w == 0.0 {
+                dropped += wu;
+                w = 0.0;
+            } else {
+                self.active[keep] = z as u32;
+                keep += 1;
+                if D == 0 {
+                    acc.add(w, self.chain.state(z));
+                } else {
+                    acc.add_fixed::<D>(w, self.chain.state(z));
+                }
+            }
+            self.phi[z] = w;
+            s2 += w * w;
+        }
+        (dropped, s2, keep)
+    }
+
     fn moments(&self) -> Gaussian {
         let d = self.dims.state;
         // Offsets from the prior mean, for numerical stability.
@@ -597,60 +724,36 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
             None => self.model.obs_std(&mut std[..m]),
         }
         // The mask as a short index list (ObsMask::iter scans 32 bits).
-        let mut idx = [0usize; MAX_OBS];
-        let mut inv_var = [0.0; MAX_OBS];
-        let mut nm = 0;
+        let mut lik = ObsTerms {
+            idx: [0usize; MAX_OBS],
+            inv_var: [0.0; MAX_OBS],
+            nm: 0,
+        };
         let mut cst = 0.0;
         for i in meas.mask.iter().take_while(|&i| i < m) {
-            idx[nm] = i;
-            inv_var[nm] = 1.0 / (std[i] * std[i]);
-            nm += 1;
+            lik.idx[lik.nm] = i;
+            lik.inv_var[lik.nm] = 1.0 / (std[i] * std[i]);
+            lik.nm += 1;
             cst -= std[i].ln() + HALF_LOG_2PI;
         }
-        // ll is indexed by position in `active` (contiguous, not by slot).
-        let mut r = [0.0; MAX_OBS];
-        let mut lmax = f64::NEG_INFINITY;
-        for (a, &zi) in self.active.iter().enumerate() {
-            let z = zi as usize;
-            let g = &self.obs_mean[z * m..(z + 1) * m];
-            self.model.obs_residual(&meas.y[..m], g, &mut r[..m]);
-            let mut q = 0.0;
-            for j in 0..nm {
-                let ri = r[idx[j]];
-                q += ri * ri * inv_var[j];
+        let y = &meas.y[..m];
+        // One pass: w = φ(z) exp(l(z)) with l = −q/2 ≤ 0, so exp(l) ≤ 1 and
+        // no max-shift is needed unless every likelihood underflows (then
+        // the max-shifted pass below). ll is indexed by position in
+        // `active` (contiguous, not by slot).
+        let mut shift = 0.0;
+        let mut w = self.weigh(y, &lik, shift);
+        if !(w.sum > MIN_UNSHIFTED_SUM && w.sum.is_finite()) {
+            if !w.lmax.is_finite() {
+                return Err(FilterError::Degenerate);
             }
-            let l = -0.5 * q;
-            self.ll[a] = l;
-            lmax = lmax.max(l);
+            self.clear_hist(&w);
+            shift = w.lmax;
+            w = self.weigh(y, &lik, shift);
         }
-        if !lmax.is_finite() {
-            return Err(FilterError::Degenerate);
-        }
-        let mass_rule = matches!(self.flush, Flush::Mass(_));
-        if mass_rule {
-            self.exp_hist.fill(0.0);
-        }
-        let mut sum = 0.0;
-        let mut wmax = 0.0f64;
-        for (j, &zi) in self.active.iter().enumerate() {
-            let z = zi as usize;
-            let a = self.ll[j] - lmax;
-            // exp(−700) ≈ 1e-304: below that the result is zero or subnormal.
-            let w = if a > -700.0 {
-                self.phi[z] * a.exp()
-            } else {
-                0.0
-            };
-            self.ll[j] = w;
-            sum += w;
-            wmax = wmax.max(w);
-            if mass_rule {
-                // w ≤ 1 (φ ≤ 1, a ≤ 0): biased exponent ≤ 1023
-                let b = ((w.to_bits() >> 52) as usize).min(EXP_BUCKETS - 1);
-                self.exp_hist[b] += w;
-            }
-        }
+        let sum = w.sum;
         if !(sum > 0.0 && sum.is_finite()) {
+            self.clear_hist(&w);
             return Err(FilterError::Degenerate);
         }
         // The cut, in the unnormalised weights' units.
@@ -659,8 +762,9 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
             Flush::Mass(eps) => {
                 let budget = eps * sum;
                 let mut cum = 0.0;
-                let mut b = 0;
-                while b < EXP_BUCKETS && cum + self.exp_hist[b] <= budget {
+                // buckets below `lo` are empty
+                let mut b = w.lo;
+                while b <= w.hi && cum + self.exp_hist[b] <= budget {
                     cum += self.exp_hist[b];
                     b += 1;
                 }
@@ -668,39 +772,28 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
                 f64::from_bits((b.min(EXP_BUCKETS - 1) as u64) << 52)
             }
         }
-        .min(wmax); // the largest mass always stays
+        .min(w.wmax); // the largest mass always stays
+        self.clear_hist(&w);
         let inv = 1.0 / sum;
-        let mut s2 = 0.0;
-        let mut dropped = 0.0;
-        let mut keep = 0;
         // The belief's moments in the same pass (what `moments` computes,
         // in the same order, so `belief` after an update is free).
         let d = self.dims.state;
         let mut acc = WeightedMoments::new(&self.prior.mean[..d]);
-        for j in 0..self.active.len() {
-            let z = self.active[j] as usize;
-            let wu = self.ll[j];
-            let mut w = wu * inv;
-            // Zeroing negligible mass keeps predict's products out of
-            // subnormal range (≈100× slower) and the support, hence both
-            // predict and update, on the states that matter.
-            if wu < cut || w == 0.0 {
-                dropped += wu;
-                w = 0.0;
-            } else {
-                self.active[keep] = z as u32;
-                keep += 1;
-                acc.add(w, self.chain.state(z));
-            }
-            self.phi[z] = w;
-            s2 += w * w;
-        }
+        let (dropped, s2, keep) = match d {
+            1 => self.flush_pass::<1>(cut, inv, &mut acc),
+            2 => self.flush_pass::<2>(cut, inv, &mut acc),
+            3 => self.flush_pass::<3>(cut, inv, &mut acc),
+            4 => self.flush_pass::<4>(cut, inv, &mut acc),
+            _ => self.flush_pass::<0>(cut, inv, &mut acc),
+        };
         self.discarded_last = dropped * inv;
         self.discarded_total += self.discarded_last;
         self.active.truncate(keep);
+        self.support_sum += keep as u64;
+        self.updates += 1;
         self.belief.set(Some(acc.gaussian()));
         Ok(UpdateInfo {
-            log_evidence: lmax + sum.ln() + cst,
+            log_evidence: shift + sum.ln() + cst,
             ess: 1.0 / s2,
             resampled: false,
         })
@@ -905,6 +998,69 @@ mod tests {
             cut.support(),
             full.support()
         );
+    }
+
+    #[test]
+    fn update_belief_and_evidence_match_direct_sums() {
+        // The fused update (unshifted weights, and the max-shifted pass when
+        // every likelihood underflows) against direct sums over the slots:
+        // the cached belief equals `moments` bit for bit, and the log
+        // evidence equals log Σ_z φ⁻(z) N(y; g(z), σ²I) by log-sum-exp.
+        let model = ou2();
+        let prior = Gaussian::diagonal(&[0.8, -0.4], &[0.3, 0.3]);
+        let mut cf = ChainFilter::from_samples(
+            model.clone(),
+            ChainConfig::moment_matched(2),
+            &Sampler::Uniform,
+            2000,
+            0.05,
+            &mut crate::rng::stream(5, 1),
+        )
+        .unwrap();
+        cf.set_flush(0.0);
+        cf.reset(0.0, &prior);
+        // the same updates under the default mass-bounded flush
+        let mut cm = ChainFilter::from_samples(
+            model.clone(),
+            ChainConfig::moment_matched(2),
+            &Sampler::Uniform,
+            2000,
+            0.05,
+            &mut crate::rng::stream(5, 1),
+        )
+        .unwrap();
+        cm.reset(0.0, &prior);
+        // y near the prior, then y ≈ 60σ away (every exp(l) underflows)
+        for (k, y) in [[0.7, -0.3], [0.9, -0.5], [12.0, -12.0]].iter().enumerate() {
+            cf.predict(0.05 * (k + 1) as f64, &[]).unwrap();
+            let phi = cf.weights().to_vec();
+            let mut lse = f64::NEG_INFINITY;
+            let mut terms = vec![];
+            for (i, &p) in phi.iter().enumerate() {
+                if p > 0.0 {
+                    let z = cf.chain().state(i);
+                    let q: f64 = (0..2).map(|a| ((y[a] - z[a]) / 0.2).powi(2)).sum();
+                    let l = p.ln() - 0.5 * q - 2.0 * (0.2f64.ln() + HALF_LOG_2PI);
+                    terms.push(l);
+                    lse = lse.max(l);
+                }
+            }
+            let direct = lse + terms.iter().map(|t| (t - lse).exp()).sum::<f64>().ln();
+            cm.set_weights(&phi);
+            cm.t = cf.t;
+            let im = cm.update(&Measurement::full(y)).unwrap();
+            assert!((im.log_evidence - direct).abs() < 1e-9 * direct.abs().max(1.0));
+            assert!(cm.last_discarded() <= FLUSH_MASS * (1.0 + 1e-9));
+            let info = cf.update(&Measurement::full(y)).unwrap();
+            assert!(
+                (info.log_evidence - direct).abs() < 1e-9 * direct.abs().max(1.0),
+                "step {k}: {} vs {direct}",
+                info.log_evidence
+            );
+            let (cached, fresh) = (cf.belief(), cf.moments());
+            assert_eq!(cached.mean, fresh.mean, "step {k}");
+            assert_eq!(cached.cov, fresh.cov, "step {k}");
+        }
     }
 
     #[test]
