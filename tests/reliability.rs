@@ -414,7 +414,12 @@ fn a_killed_refine_resumes_its_chain_and_the_filter_keeps_its_belief() {
     use beliefbus::stage::refine::{chain_qos, CHAIN_CHANNEL};
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let report = tmp("refine-resume.json");
-    let sets = ["filter.backend=\"chain\"", "control.backend=\"none\""];
+    // One incremental chain (moving-frame versions are each a lineage).
+    let sets = [
+        "filter.backend=\"chain\"",
+        "control.backend=\"none\"",
+        "refine.moving_frame=false",
+    ];
     let mut run = Run::start(&[
         "run",
         "configs/default.toml",
@@ -427,6 +432,8 @@ fn a_killed_refine_resumes_its_chain_and_the_filter_keeps_its_belief() {
         sets[0],
         "--set",
         sets[1],
+        "--set",
+        sets[2],
     ]);
     let prefix = run.prefix();
     run.expect("supervisor: started refine ");

@@ -22,6 +22,8 @@ pub struct SimRefine {
     work: Duration,
     dt: f64,
     state_dim: usize,
+    /// States added by refine so far.
+    pub added: u64,
 }
 
 impl SimRefine {
@@ -40,13 +42,17 @@ impl SimRefine {
             work: work.unwrap_or(Duration::from_secs_f64(cfg.refine.work_ms * 1e-3)),
             dt,
             state_dim,
+            added: 0,
         })
     }
 
-    /// Before filter step `k` (time k·dt): refine and offer a snapshot when due.
+    /// Before filter step `k` (time k·dt), with `u` the control in force
+    /// (as the refine stage reads it from the control channel): refine and
+    /// offer a snapshot when due.
     pub fn tick<M: SdeModel>(
         &mut self,
         k: usize,
+        u: &[f64],
         live: &mut LiveChainFilter<M, Vec<u64>>,
     ) -> Result<()> {
         if !k.is_multiple_of(self.period) {
@@ -54,9 +60,14 @@ impl SimRefine {
         }
         let r = &mut self.refiner;
         r.set_belief_at(&live.belief(), k as f64 * self.dt);
+        r.set_control(u);
         let fresh = r.is_empty();
-        r.work(self.work)?;
-        if (fresh || k.is_multiple_of(self.publish)) && !live.has_pending() {
+        let due = fresh || k.is_multiple_of(self.publish);
+        // Moving frame: a version is built when one is due (as the stage does).
+        if !r.moving_frame() || (due && !live.has_pending()) {
+            self.added += r.work(self.work)? as u64;
+        }
+        if due && !live.has_pending() {
             let mut buf = vec![0u64; r.snapshot_words().max(words_needed(self.state_dim, 0, 0))];
             r.write_snapshot(&mut buf, 0)?;
             live.offer(buf)?;

@@ -246,6 +246,10 @@ pub struct ChainFilterConfig {
     /// version (validation, observation means) before swapping to it.
     #[serde(default = "default_prepare_budget")]
     pub prepare_budget_us: f64,
+    /// Re-anchor the posterior when its effective number of states
+    /// (1/Σφ²) falls below this (0: never; see `LiveChainFilter::reanchor`).
+    #[serde(default)]
+    pub reanchor_ess: f64,
 }
 
 fn default_prepare_budget() -> f64 {
@@ -256,6 +260,7 @@ impl Default for ChainFilterConfig {
     fn default() -> Self {
         Self {
             prepare_budget_us: default_prepare_budget(),
+            reanchor_ess: 0.0,
         }
     }
 }
@@ -356,6 +361,12 @@ pub struct RefineConfig {
     /// k-NN Near rule constant: k = max(⌈c log n⌉, 1 + d + d(d+1)/2 + 1).
     #[serde(default = "default_knn_c")]
     pub knn_c: f64,
+    /// Moving-frame versions: each snapshot is a batch chain around the
+    /// belief built in the frame moving with its states' mean drift on the
+    /// translation-invariant axes (the filter carries the frame exactly;
+    /// see `LiveChainFilter::set_moving_frame`). Off: one incremental chain.
+    #[serde(default)]
+    pub moving_frame: bool,
 }
 
 fn default_refine_period() -> f64 {
@@ -406,6 +417,7 @@ impl Default for RefineConfig {
             uniform_fraction: default_uniform_fraction(),
             min_std_fraction: default_min_std_fraction(),
             knn_c: default_knn_c(),
+            moving_frame: false,
         }
     }
 }

@@ -199,13 +199,12 @@ impl Backend {
     pub fn new(cfg: &PipelineConfig, start: &Gaussian, t0: f64) -> Result<Self, StageError> {
         let f = make_filter_from(cfg, start, t0)?;
         Ok(match cfg.filter.backend {
-            FilterBackend::Chain => Backend::Chain(Box::new(LiveChainFilter::new(
-                cfg.model()?,
-                f,
-                cfg.refine.max_states,
-                start,
-                t0,
-            ))),
+            FilterBackend::Chain => {
+                let mut c = LiveChainFilter::new(cfg.model()?, f, cfg.refine.max_states, start, t0);
+                c.set_reanchor(cfg.filter.chain.reanchor_ess);
+                c.set_moving_frame(cfg.refine.moving_frame);
+                Backend::Chain(Box::new(c))
+            }
             _ => Backend::Plain(f),
         })
     }

@@ -10,18 +10,33 @@
 //!    Near(z)) with new states drawn around the latest belief: N(m(τ),
 //!    (inflate·σ)²) with m(τ) the belief mean carried by the uncontrolled
 //!    drift for τ ~ U[0, horizon_s] (the belief moves; the chain must be
-//!    there before it), σ floored at `min_std_fraction` of the bounds, mixed
-//!    with `uniform_fraction` uniform draws (exploration).
+//!    there before it; the drift under the latest control once refine has
+//!    read one from the control channel), σ floored at `min_std_fraction`
+//!    of the bounds, mixed with `uniform_fraction` uniform draws
+//!    (exploration).
 //! 3. Exponential backup (§3.3.2): after each insertion δ is halved until it
 //!    is below the holding time of every (re)connected state
 //!    ([`TimeEqualized::backup`]).
 //! 4. Bounded size: above `max_states`, the `retire_fraction` of states
-//!    farthest from the belief (Mahalanobis distance under the inflated
-//!    belief covariance — far states carry negligible belief mass) are
-//!    retired and their neighbours reconnected ([`crate::chain::retire`]);
-//!    δ is refitted to the remaining holding times (it may grow back).
+//!    farthest from the belief's predicted path over `horizon_s`
+//!    (Mahalanobis distance under the inflated belief covariance to the
+//!    nearest of 5 points on it — far states carry negligible belief mass,
+//!    and the states it left behind go first) are retired and their
+//!    neighbours reconnected ([`crate::chain::retire`]); δ is refitted to
+//!    the remaining holding times (it may grow back).
 //! 5. Every `publish_period_ms`: P^δ is built ([`PropagationKernel`]) and
 //!    the snapshot written in place ([`crate::chain::snapshot::write`]).
+//!
+//! **Moving frame** (`refine.moving_frame`, the default scenario's mode):
+//! instead of one incremental chain, every version is a batch chain
+//! (Alg. 2.1) of `max_states` states drawn around the latest belief and
+//! built for f(x, u₀) − w, w the mean uncontrolled drift of its states: the
+//! chain carries the belief's shape and the filter carries its motion as a
+//! translation of the frame (see
+//! [`crate::filter::live_chain::LiveChainFilter::set_moving_frame`] for
+//! why: a fixed point set diffuses the ship's position drift numerically).
+//! A version is built when one is due, from the latest belief, and is a
+//! lineage of its own. Steps 2–4 above then do not apply.
 //!
 //! The snapshot service keeps history 1 and buffer 1 (latest value) and
 //! lets a subscriber hold 2 snapshots (the filter's active and pending
@@ -40,7 +55,8 @@ use crate::chain::{
     moment_equations, Chain, ChainConfig, NearRule, PropagationKernel, Sampler, TimeEqualized,
 };
 use crate::ipc::{
-    run_loop, Belief, Bus, Qos, SlicePublisher, SliceQos, StageKind, StageStats, Subscriber, Wake,
+    run_loop, Belief, Bus, Control, Qos, SlicePublisher, SliceQos, StageKind, StageStats,
+    Subscriber, Wake,
 };
 use crate::model::SdeModel;
 use crate::pipeline::supervisor_resume::Resume;
@@ -55,8 +71,48 @@ use std::time::{Duration, Instant};
 #[path = "refine_resume.rs"]
 pub mod resume;
 
+/// Points on the belief's predicted path that retirement measures from.
+const PATH_POINTS: usize = 4;
+
 /// The slice channel of chain snapshots.
 pub const CHAIN_CHANNEL: &str = "chain";
+
+/// The model in the frame that moves at the constant velocity `w`:
+/// drift f(x, u) − w (the moving-frame chains, `refine.moving_frame`).
+pub struct Framed<'a, M: SdeModel + ?Sized> {
+    pub inner: &'a M,
+    pub w: [f64; MAX_STATE],
+}
+
+impl<M: SdeModel + ?Sized> SdeModel for Framed<'_, M> {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+    fn dims(&self) -> crate::model::Dims {
+        self.inner.dims()
+    }
+    fn drift(&self, x: &[f64], u: &[f64], f: &mut [f64]) {
+        self.inner.drift(x, u, f);
+        for (fi, wi) in f.iter_mut().zip(&self.w) {
+            *fi -= wi;
+        }
+    }
+    fn diffusion(&self, x: &[f64], big_f: &mut [f64]) {
+        self.inner.diffusion(x, big_f)
+    }
+    fn obs_mean(&self, x: &[f64], g: &mut [f64]) {
+        self.inner.obs_mean(x, g)
+    }
+    fn obs_std(&self, std: &mut [f64]) {
+        self.inner.obs_std(std)
+    }
+    fn obs_residual(&self, y: &[f64], yhat: &[f64], r: &mut [f64]) {
+        self.inner.obs_residual(y, yhat, r)
+    }
+    fn bounds(&self) -> &crate::model::Bounds {
+        self.inner.bounds()
+    }
+}
 
 /// The construction parameters of the pipeline's chain: moment-matching
 /// kernel with the k-NN Near rule of `refine.knn_c`, built for u₀ = 0.
@@ -91,6 +147,8 @@ pub fn chain_qos(cfg: &PipelineConfig, dim: usize) -> SliceQos {
 /// The ports of the refine stage.
 pub struct RefinePorts {
     pub belief: Subscriber<Belief>,
+    /// Latest control (no wake-up: read with each belief).
+    pub control: Subscriber<Control>,
     pub chain: SlicePublisher<u64>,
     pub stats: StatsPort,
 }
@@ -101,6 +159,7 @@ impl RefinePorts {
         let dim = cfg.model()?.dims().state;
         Ok(Self {
             belief: bus.subscriber()?,
+            control: bus.subscriber_with(1, false)?,
             chain: bus.slice_publisher(CHAIN_CHANNEL, &chain_qos(cfg, dim))?,
             stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
         })
@@ -126,6 +185,11 @@ pub struct Refiner {
     /// last such belief (mean, time).
     drive: [f64; MAX_STATE],
     anchor: Option<([f64; MAX_STATE], f64)>,
+    /// The latest control, once one is known: the belief is then carried
+    /// ahead by f(m, u) instead of f(m, u₀) + drive.
+    control: Option<[f64; MAX_CONTROL]>,
+    /// Moving-frame chains built (each its own lineage).
+    pub frames: u64,
     /// Insertions rejected by the chain (e.g. duplicate coordinates).
     pub failed_inserts: u64,
     /// States retired so far.
@@ -156,6 +220,8 @@ impl Refiner {
             rec: Vec::new(),
             drive: [0.0; MAX_STATE],
             anchor: None,
+            control: None,
+            frames: 0,
             failed_inserts: 0,
             retired: 0,
         })
@@ -202,6 +268,17 @@ impl Refiner {
         }
     }
 
+    /// Follow the latest control (ignored unless finite and of the
+    /// model's size): new states are placed where the belief goes under it.
+    pub fn set_control(&mut self, u: &[f64]) {
+        let nu = self.model.dims().control;
+        if u.len() == nu && u.iter().all(|v| v.is_finite()) {
+            let mut c = [0.0; MAX_CONTROL];
+            c[..nu].copy_from_slice(u);
+            self.control = Some(c);
+        }
+    }
+
     /// Current chain size.
     pub fn len(&self) -> usize {
         self.chain.as_ref().map_or(0, |c| c.len())
@@ -239,9 +316,32 @@ impl Refiner {
         )
     }
 
-    /// A new state: around the belief mean propagated for τ ~ U[0, horizon]
-    /// by the uncontrolled drift plus the estimated drive (where the belief
-    /// is going under the current control).
+    /// The belief mean carried `tau` seconds ahead by the uncontrolled
+    /// drift plus the estimated drive (where the belief is going under the
+    /// current control), projected into the bounds.
+    fn carry(&self, tau: f64) -> [f64; MAX_STATE] {
+        let d = self.belief.dim;
+        let mut m = [0.0; MAX_STATE];
+        m[..d].copy_from_slice(self.belief.mean());
+        let steps = (tau / 0.01).ceil() as usize;
+        let nu = self.model.dims().control;
+        let (u, drive) = match self.control {
+            Some(u) => (u, [0.0; MAX_STATE]),
+            None => ([0.0; MAX_CONTROL], self.drive),
+        };
+        let mut f = [0.0; MAX_STATE];
+        for _ in 0..steps {
+            self.model.drift(&m[..d], &u[..nu], &mut f[..d]);
+            for i in 0..d {
+                m[i] += (f[i] + drive[i]) * tau / steps as f64;
+            }
+        }
+        self.model.bounds().project(&mut m[..d]);
+        m
+    }
+
+    /// A new state: around the belief mean carried τ ~ U[0, horizon] ahead
+    /// ([`Self::carry`]).
     fn draw(&mut self, x: &mut [f64]) {
         let d = self.belief.dim;
         let h = self.cfg.refine.horizon_s;
@@ -250,27 +350,83 @@ impl Refiner {
         } else {
             0.0
         };
-        let mut m = [0.0; MAX_STATE];
-        m[..d].copy_from_slice(self.belief.mean());
-        let steps = (tau / 0.01).ceil() as usize;
-        let nu = self.model.dims().control;
-        let u = [0.0; MAX_CONTROL];
-        let mut f = [0.0; MAX_STATE];
-        for _ in 0..steps {
-            self.model.drift(&m[..d], &u[..nu], &mut f[..d]);
-            for i in 0..d {
-                m[i] += (f[i] + self.drive[i]) * tau / steps as f64;
-            }
-        }
-        self.model.bounds().project(&mut m[..d]);
+        let m = self.carry(tau);
         match self.sampler_at(&m[..d]) {
             Some(s) => s.sample(self.model.bounds(), &mut self.rng, x),
             None => Sampler::Uniform.sample(self.model.bounds(), &mut self.rng, x),
         }
     }
 
+    /// A moving-frame version: a batch chain of `max_states` states
+    /// (`initial_states` for the first) drawn
+    /// around the belief (N(m, (inflate·σ)²), σ floored, mixed with
+    /// uniform draws), built for f(x, u₀) − w with w the mean uncontrolled
+    /// drift of its states — the filter computes the same w from the
+    /// snapshot ([`crate::filter::live_chain::frame_of`]) and carries the
+    /// belief's motion as a translation of the frame
+    /// ([`crate::filter::live_chain::LiveChainFilter::set_moving_frame`]),
+    /// so the states need not be placed ahead of it. Each version is a
+    /// lineage of its own.
+    fn build_framed(&mut self) -> Result<usize, StageError> {
+        let d = self.belief.dim;
+        let nu = self.model.dims().control;
+        // The first version is a crude chain of `initial_states`, at once.
+        let n = if self.chain.is_none() {
+            self.cfg.refine.initial_states
+        } else {
+            self.cfg.refine.max_states
+        };
+        let sampler = self.sampler_at(&self.belief.mean[..d]);
+        let mut pts = vec![0.0; n * d];
+        for p in pts.chunks_exact_mut(d) {
+            match &sampler {
+                Some(smp) => smp.sample(self.model.bounds(), &mut self.rng, p),
+                None => Sampler::Uniform.sample(self.model.bounds(), &mut self.rng, p),
+            }
+        }
+        let mut w = [0.0; MAX_STATE];
+        let mut f = [0.0; MAX_STATE];
+        for p in pts.chunks_exact(d) {
+            self.model.drift(p, &[0.0; MAX_CONTROL][..nu], &mut f[..d]);
+            for a in 0..d {
+                w[a] += f[a];
+            }
+        }
+        for wa in &mut w[..d] {
+            *wa /= n as f64;
+        }
+        let framed = Framed {
+            inner: &self.model,
+            w,
+        };
+        let c = Chain::batch(&framed, chain_config(&self.cfg, d), &pts).map_err(|e| {
+            StageError::Build {
+                what: "chain",
+                reason: e.to_string(),
+            }
+        })?;
+        self.eq = TimeEqualized::new(self.cfg.sample_dt()).map_err(|e| StageError::Build {
+            what: "chain",
+            reason: e.to_string(),
+        })?;
+        self.eq.fit(c.holding());
+        self.chain = Some(c);
+        self.frames += 1;
+        Ok(n)
+    }
+
+    /// Whether versions are moving-frame batch chains (`refine.moving_frame`):
+    /// then [`Self::work`] builds one per call, to be called when a
+    /// version is due.
+    pub fn moving_frame(&self) -> bool {
+        self.cfg.refine.moving_frame
+    }
+
     /// One round of work for at most `budget`; returns states added.
     pub fn work(&mut self, budget: Duration) -> Result<usize, StageError> {
+        if self.cfg.refine.moving_frame {
+            return self.build_framed();
+        }
         let t0 = Instant::now();
         let d = self.belief.dim;
         let build = |e: &dyn std::fmt::Display| StageError::Build {
@@ -310,7 +466,7 @@ impl Refiner {
 
     /// Retire the states farthest from the belief (see the module doc).
     fn retire(&mut self) -> Result<(), crate::chain::ChainError> {
-        let chain = self.chain.as_mut().expect("built");
+        let chain = self.chain.as_ref().expect("built");
         let n = chain.len();
         let target = ((self.cfg.refine.max_states as f64) * (1.0 - self.cfg.refine.retire_fraction))
             as usize;
@@ -328,17 +484,28 @@ impl Refiner {
             }
         }
         let ok = crate::chain::linalg::cholesky(&mut l[..d * d], d);
+        // Distance to the belief's path over the next horizon (where new
+        // states are drawn): the states it has left behind go first.
+        let h = self.cfg.refine.horizon_s;
+        let path: Vec<[f64; MAX_STATE]> = (0..=PATH_POINTS)
+            .map(|j| self.carry(h * j as f64 / PATH_POINTS as f64))
+            .collect();
+        let chain = self.chain.as_mut().expect("built");
         let mut dist: Vec<(f64, u32)> = (0..n)
             .map(|i| {
                 let z = chain.state(i);
-                let mut y = [0.0; MAX_STATE];
-                for a in 0..d {
-                    y[a] = z[a] - self.belief.mean[a];
+                let mut best = f64::INFINITY;
+                for m in &path {
+                    let mut y = [0.0; MAX_STATE];
+                    for a in 0..d {
+                        y[a] = z[a] - m[a];
+                    }
+                    if ok {
+                        crate::chain::linalg::forward_sub(&l[..d * d], d, &mut y[..d]);
+                    }
+                    best = best.min(y[..d].iter().map(|v| v * v).sum());
                 }
-                if ok {
-                    crate::chain::linalg::forward_sub(&l[..d * d], d, &mut y[..d]);
-                }
-                (y[..d].iter().map(|v| v * v).sum(), i as u32)
+                (best, i as u32)
             })
             .collect();
         dist.select_nth_unstable_by(target, |a, b| a.0.total_cmp(&b.0));
@@ -363,9 +530,16 @@ impl Refiner {
         let view = chain.view();
         self.kern.rebuild(&view, self.eq.delta(), false);
         self.version += 1;
+        // A moving-frame version is a lineage of its own (a new id space
+        // and frame: the filter installs it from the Gaussian belief).
+        let lineage = if self.cfg.refine.moving_frame {
+            self.lineage ^ self.frames.rotate_left(40)
+        } else {
+            self.lineage
+        };
         let meta = SnapshotMeta {
             version: self.version,
-            lineage: self.lineage,
+            lineage,
             t_pub_ns,
         };
         snapshot::write(out, meta, &view, &self.vol, &self.kern).map_err(|e| StageError::Build {
@@ -428,6 +602,7 @@ pub fn run_with(
     let mut next_work = if active { 0u64 } else { u64::MAX };
     let mut next_publish = 0u64;
     let belief = &ports.belief;
+    let control = &ports.control;
     let chain_pub = &mut ports.chain;
     let stats = &mut ports.stats;
     run_loop(&[belief], rt.wake_mode(), tick, stop, |w| {
@@ -439,9 +614,16 @@ pub fn run_with(
                     m.processed += 1;
                     refiner.set_belief_at(&b.gaussian(), b.header.t_valid_ns as f64 * 1e-9);
                 }
+                if let (Some(c), _) = control.latest()? {
+                    let n = (c.dim as usize).min(MAX_CONTROL);
+                    refiner.set_control(&c.u[..n]);
+                }
             }
             let now = clock.now_ns();
-            if now >= next_work {
+            // Moving frame: a version is built when one is due, from the
+            // latest belief.
+            let due = !refiner.moving_frame() || refiner.is_empty() || now >= next_publish;
+            if now >= next_work && due {
                 next_work = now + period_ns;
                 let t_in = clock.now_ns();
                 let fresh = refiner.is_empty();

@@ -215,6 +215,9 @@ mod tests {
             &Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/default.toml"),
             &[
                 "filter.backend=\"chain\"".into(),
+                // Resuming continues one incremental chain; moving-frame
+                // versions are each a lineage of their own.
+                "refine.moving_frame=false".into(),
                 "refine.max_states=600".into(),
                 "refine.initial_states=300".into(),
             ],
