@@ -52,8 +52,8 @@ fn a_run_on_the_live_chain_swaps_versions_and_beats_raw_measurements() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let report = tmp("default.json");
     let o = Command::new(env!("CARGO_BIN_EXE_beliefbus"))
-        // Estimation only (the closed loop on the chain filter is the
-        // default run; its accuracy is measured in chain-closed-loop).
+        // Estimation only (the closed loop on the chain filter is measured
+        // in chain-closed-loop and by `run --set filter.backend=chain`).
         .args(["run", "--duration", "8", "--quiet"])
         .args(["--set", "filter.backend=\"chain\""])
         .args(["--set", "control.backend=\"none\""])
