@@ -35,6 +35,29 @@ fn sizes() -> Vec<usize> {
     }
 }
 
+/// Whether criterion's name filter (the first free argument, a regex, or
+/// an exact name with `--exact`) selects some benchmark of `group`: groups
+/// it does not select skip their set-up (chains of up to 10⁵ states and
+/// simulated trajectories), as criterion would skip their measurement.
+fn selected(group: &str) -> bool {
+    static FILTER: std::sync::OnceLock<Option<(regex::Regex, bool)>> = std::sync::OnceLock::new();
+    let filter = FILTER.get_or_init(|| {
+        let args: Vec<String> = std::env::args().skip(1).collect();
+        let exact = args.iter().any(|a| a == "--exact");
+        let free = args.iter().find(|a| !a.starts_with('-'))?;
+        let re = if exact {
+            format!("^{}$", regex::escape(free))
+        } else {
+            free.clone()
+        };
+        Some((regex::Regex::new(&re).ok()?, exact))
+    });
+    let Some((re, _)) = filter else {
+        return true;
+    };
+    sizes().iter().any(|n| re.is_match(&format!("{group}/{n}")))
+}
+
 /// Thread CPU time (CLOCK_THREAD_CPUTIME_ID).
 fn cpu_now() -> Duration {
     Duration::from_nanos(beliefbus::rt::clock::thread_cpu_ns())
@@ -68,7 +91,11 @@ fn cfg(d: usize, kernel: KernelKind) -> ChainConfig {
 
 fn batch_group<M: SdeModel + Clone>(c: &mut Criterion, name: &str, model: &M, kernel: KernelKind) {
     let d = model.dims().state;
-    let mut g = c.benchmark_group(format!("batch/{name}/{kernel:?}"));
+    let group = format!("batch/{name}/{kernel:?}");
+    if !selected(&group) {
+        return;
+    }
+    let mut g = c.benchmark_group(group);
     g.sample_size(10).measurement_time(Duration::from_secs(4));
     for n in sizes() {
         let pts = Sampler::Uniform.sample_many(model.bounds(), n, &mut stream(1, n as u64));
@@ -100,28 +127,40 @@ fn incremental_group<M: SdeModel + Clone>(
 ) {
     let d = model.dims().state;
     let add = 1000;
-    let mut g = c.benchmark_group(format!("incremental/{name}/{kernel:?}"));
+    let group = format!("incremental/{name}/{kernel:?}");
+    if !selected(&group) {
+        return;
+    }
+    let mut g = c.benchmark_group(group);
     g.sample_size(10).measurement_time(Duration::from_secs(4));
     g.throughput(Throughput::Elements(add as u64));
     for n in sizes() {
         let pts = Sampler::Uniform.sample_many(model.bounds(), n, &mut stream(2, n as u64));
         let base = Chain::batch(model, cfg(d, kernel), &pts).unwrap();
         let new = Sampler::Uniform.sample_many(model.bounds(), add, &mut stream(3, n as u64));
+        let clock = Clock::from_env();
         {
             let mut ch = base.clone();
+            let t0 = clock.now();
+            ch.reserve(add);
+            let prep = clock.now() - t0;
             let mut rec = Vec::new();
             let mut touched = 0usize;
+            let before = ch.stats().rows_computed;
             for x in new.chunks_exact(d) {
                 ch.add_state(model, x, &mut rec).unwrap();
                 touched += rec.len();
             }
+            let rows = ch.stats().rows_computed - before;
             eprintln!(
-                "incremental/{name}/{kernel:?} n={n}: mean out-degree {:.2}, {:.1} rows (re)connected per added state",
+                "incremental/{name}/{kernel:?} n={n}: mean out-degree {:.2}, k = {}, per added state {:.1} rows reconnected of which {:.1} recomputed; reserve (builds the reverse-query tree; once per chain, not timed) {:.1} ms",
                 ch.mean_out_degree(),
-                touched as f64 / add as f64
+                ch.knn_k(ch.len()),
+                touched as f64 / add as f64,
+                rows as f64 / add as f64,
+                prep.as_secs_f64() * 1e3
             );
         }
-        let clock = Clock::from_env();
         g.bench_function(BenchmarkId::from_parameter(n), |b| {
             b.iter_custom(|iters| {
                 let mut total = Duration::ZERO;
@@ -169,7 +208,11 @@ fn step_group_with<M: SdeModel + Clone>(
     } else {
         "filter_step"
     };
-    let mut g = c.benchmark_group(format!("{tag}/{name}/{kernel:?}"));
+    let group = format!("{tag}/{name}/{kernel:?}");
+    if !selected(&group) {
+        return;
+    }
+    let mut g = c.benchmark_group(group);
     g.sample_size(20).measurement_time(Duration::from_secs(3));
     for n in sizes() {
         let pts = Sampler::Uniform.sample_many(model.bounds(), n, &mut stream(4, n as u64));
@@ -215,11 +258,15 @@ fn sim_group<M: SdeModel + Clone>(
     let dt = 0.01;
     let steps = 500;
     let tag = if advected { "advected" } else { "thesis" };
+    let group = format!("filter_step_sim/{tag}/{name}/{kernel:?}");
+    if !selected(&group) {
+        return;
+    }
     let mut rng = stream(5, 0);
     let x0 = draw_from(model, prior, &mut rng);
     let rec = simulate(model, &x0, dt, steps, 1e-3, &mut rng);
     let clock = Clock::from_env();
-    let mut g = c.benchmark_group(format!("filter_step_sim/{tag}/{name}/{kernel:?}"));
+    let mut g = c.benchmark_group(group);
     g.sample_size(20).measurement_time(Duration::from_secs(3));
     for n in sizes() {
         let pts = Sampler::Uniform.sample_many(model.bounds(), n, &mut stream(4, n as u64));

@@ -23,18 +23,23 @@
 //!
 //! Storage is flat: coordinates n × d in one `Vec<f64>`, stable `u32` ids,
 //! holding times, radii, and slab/CSR transitions ([`super::storage`]).
-//! Per-state caches of f(z), ‖f‖, ‖FFᵀ‖ and the Cholesky factor of FFᵀ make
-//! reconnection independent of model evaluation cost; the model is needed
-//! only when a state is added. Columns are state *slots* (indices into the
-//! arrays); ids are what survives across versions.
+//! Per-state caches of f(z), ‖f‖, ‖FFᵀ‖ and the Cholesky factor L of FFᵀ
+//! make reconnection independent of model evaluation cost; the model is
+//! needed only when a state is added. What a Gaussian row reads is one record
+//! per slot (f, ‖f‖, ‖FFᵀ‖ and L⁻¹ packed, so the kernel's quadratic forms
+//! are products, not forward substitutions), and the flags of a slot's list
+//! and row another; the rows and lists of the states a new state touches are
+//! prefetched before they are edited (incremental construction at
+//! n = 10⁵ is memory-bound: these are random slots). Columns are state
+//! *slots* (indices into the arrays); ids are what survives across versions.
 
 use super::index::{SpatialIndex, MAX_INDEX_DIM};
 use super::kernel::{
-    gaussian_at, holding_time, moment_matched_at, KernelKind, KernelOutcome, KernelWork, LocalDyn,
-    ADVECTED_MEAN_ROW_WEIGHT, MAX_LP_NEIGHBOURS, MEAN_ROW_WEIGHT,
+    gaussian_gather_at, holding_time, moment_matched_at, KernelKind, KernelOutcome, KernelWork,
+    LocalDyn, ADVECTED_MEAN_ROW_WEIGHT, MAX_LP_NEIGHBOURS, MEAN_ROW_WEIGHT,
 };
 use super::knn_tree::KnnTree;
-use super::linalg::{cholesky, sym_spectral_norm};
+use super::linalg::{cholesky, lower_inverse_packed, sym_spectral_norm};
 use super::sample::Sampler;
 use super::storage::{ChainView, Transitions};
 use super::{ChainConfig, ChainError, NearRule};
@@ -54,6 +59,9 @@ pub const MIN_PROB: f64 = 1e-12;
 pub struct ChainStats {
     /// ConnectState calls.
     pub connects: u64,
+    /// ConnectState calls that computed a row (the others found an
+    /// unchanged Near set and kept the row).
+    pub rows_computed: u64,
     /// Rows from the Gaussian kernel (incl. LP fallbacks).
     pub gaussian: u64,
     /// LP rows meeting the moment equations exactly.
@@ -62,6 +70,21 @@ pub struct ChainStats {
     pub least_squares: u64,
     /// States with no neighbour (absorbing).
     pub absorbing: u64,
+}
+
+/// Per-slot flags kept together (one cache line serves all of them).
+#[derive(Clone, Copy, Debug)]
+struct SlotMeta {
+    /// k of the slot's Near list; 0 when it has none (reconnection then
+    /// queries the tree).
+    near_k: u32,
+    /// Whether the Near list changed since the row was computed.
+    stale: bool,
+    /// Whether F Fᵀ(z) is positive definite (its Cholesky factor cached).
+    chol_ok: bool,
+    /// Counter the current row was tallied under (a reconnection whose
+    /// Near set did not change is tallied again without recomputing).
+    outcome: KernelOutcome,
 }
 
 /// A Markov-chain approximation of a diffusion.
@@ -77,12 +100,13 @@ pub struct Chain {
     near_count: Vec<u32>,
     trans: Transitions,
     // per-state caches
-    drift: Vec<f64>,
-    drift_norm: Vec<f64>,
-    diff_norm: Vec<f64>,
+    /// What recomputing a row reads, one record per slot (stride
+    /// [`Self::kern_stride`]): f(z) (d), ‖f‖, ‖FFᵀ‖, L⁻¹ packed by rows
+    /// (d(d+1)/2; NaN when FFᵀ is singular) — one or two cache lines
+    /// instead of one per array.
+    kern: Vec<f64>,
     ff: Vec<f64>,
     chol: Vec<f64>,
-    chol_ok: Vec<bool>,
     /// Advected construction: flow displacement m(z) over τ, n × d.
     adv: Vec<f64>,
     index: SpatialIndex,
@@ -90,22 +114,18 @@ pub struct Chain {
     /// distance) in ascending order, kept exact under insertion (see
     /// [`Self::add_state`]) so that reconnection needs no k-d tree query.
     near_lists: Transitions,
-    /// k of each slot's Near list; 0 when it has none (reconnection then
-    /// queries the tree).
-    near_k: Vec<u32>,
+    /// Per-slot flags of the Near list and row (one record per slot).
+    meta: Vec<SlotMeta>,
     /// k-NN rule without advection: the states again, each with the squared
     /// distance to the k-th entry of its Near list as the bound of its
     /// reverse queries (0 without a list of the current k).
     rtree: Option<KnnTree>,
-    /// Counter each slot's current row was tallied under (a reconnection
-    /// whose Near set did not change is tallied again without recomputing).
-    outcome: Vec<KernelOutcome>,
-    /// Whether a slot's Near list changed since its row was computed.
-    row_stale: Vec<bool>,
     next_id: u32,
     stats: ChainStats,
     // scratch
     neigh: Vec<(u32, f64)>,
+    /// Reverse-query hits (slot, squared distance) of the state being added.
+    hits: Vec<(u32, f64)>,
     near_list: Vec<u32>,
     dz: Vec<f64>,
     pbuf: Vec<f64>,
@@ -135,22 +155,18 @@ impl Chain {
             radius: vec![],
             near_count: vec![],
             trans: Transitions::default(),
-            drift: vec![],
-            drift_norm: vec![],
-            diff_norm: vec![],
+            kern: vec![],
             ff: vec![],
             chol: vec![],
-            chol_ok: vec![],
             adv: vec![],
             index,
             rtree,
             near_lists: Transitions::default(),
-            near_k: vec![],
-            outcome: vec![],
-            row_stale: vec![],
+            meta: vec![],
             next_id: 0,
             stats: ChainStats::default(),
             neigh: Vec::with_capacity(256),
+            hits: Vec::with_capacity(256),
             near_list: Vec::with_capacity(256),
             dz: Vec::with_capacity(256 * d),
             pbuf: Vec::with_capacity(256),
@@ -203,23 +219,38 @@ impl Chain {
         Self::batch(model, cfg, &pts)
     }
 
-    /// Reserve room for `extra` more states.
+    /// Prepare growth by `extra` more states: reserve room in every
+    /// per-state array and in the transition and Near-list slabs, and build
+    /// the reverse-query tree of the k-NN lists if it is not there yet
+    /// (after [`Self::batch`] or [`Self::from_view`]; otherwise the first
+    /// [`Self::add_state`] builds it). Adding up to `extra` states then
+    /// reallocates nothing but the k-d trees' nodes.
     pub fn reserve(&mut self, extra: usize) {
+        self.ensure_rtree();
+        let n = self.len();
+        // Entries per new row: k(n + extra) for the k-NN rule, the mean row
+        // length otherwise, with the slab's slack per row.
+        let k = self
+            .knn_k(n + extra)
+            .max(self.mean_out_degree().ceil() as usize);
+        let entries = extra * super::storage::row_capacity(k as u32) as usize;
+        self.trans.reserve(extra, entries);
+        if self.lists_enabled() {
+            self.near_lists.reserve(extra, entries);
+        }
+        if let Some(t) = &mut self.rtree {
+            t.reserve(extra);
+        }
         let d = self.dim;
         self.states.reserve(extra * d);
         self.ids.reserve(extra);
         self.holding.reserve(extra);
         self.radius.reserve(extra);
         self.near_count.reserve(extra);
-        self.drift.reserve(extra * d);
-        self.drift_norm.reserve(extra);
-        self.diff_norm.reserve(extra);
+        self.kern.reserve(extra * self.kern_stride());
         self.ff.reserve(extra * d * d);
         self.chol.reserve(extra * d * d);
-        self.chol_ok.reserve(extra);
-        self.near_k.reserve(extra);
-        self.outcome.reserve(extra);
-        self.row_stale.reserve(extra);
+        self.meta.reserve(extra);
         if self.cfg.step.is_some() {
             self.adv.reserve(extra * d);
         }
@@ -342,17 +373,25 @@ impl Chain {
         self.holding.push(f64::INFINITY);
         self.radius.push(0.0);
         self.near_count.push(0);
-        self.drift.extend_from_slice(&f[..d]);
-        self.drift_norm
+        self.kern.extend_from_slice(&f[..d]);
+        self.kern
             .push(f[..d].iter().map(|v| v * v).sum::<f64>().sqrt());
-        self.diff_norm.push(sym_spectral_norm(&ff[..d * d], d));
+        self.kern.push(sym_spectral_norm(&ff[..d * d], d));
+        let t = d * (d + 1) / 2;
+        let mut linv = [f64::NAN; MAX_STATE * (MAX_STATE + 1) / 2];
+        if ok {
+            lower_inverse_packed(&l[..d * d], d, &mut linv[..t]);
+        }
+        self.kern.extend_from_slice(&linv[..t]);
         self.ff.extend_from_slice(&ff[..d * d]);
         self.chol.extend_from_slice(&l[..d * d]);
-        self.chol_ok.push(ok);
         self.near_lists.push_row();
-        self.near_k.push(0);
-        self.outcome.push(KernelOutcome::Absorbing);
-        self.row_stale.push(false);
+        self.meta.push(SlotMeta {
+            near_k: 0,
+            stale: false,
+            chol_ok: ok,
+            outcome: KernelOutcome::Absorbing,
+        });
         if let Some(tau) = self.cfg.step {
             let m = self.flow_displacement(model, x, tau);
             self.adv.extend_from_slice(&m[..d]);
@@ -371,16 +410,11 @@ impl Chain {
         self.holding.truncate(n);
         self.radius.truncate(n);
         self.near_count.truncate(n);
-        self.drift.truncate(n * d);
-        self.drift_norm.truncate(n);
-        self.diff_norm.truncate(n);
+        self.kern.truncate(n * self.kern_stride());
         self.ff.truncate(n * d * d);
         self.chol.truncate(n * d * d);
-        self.chol_ok.truncate(n);
         self.near_lists.pop_row();
-        self.near_k.truncate(n);
-        self.outcome.truncate(n);
-        self.row_stale.truncate(n);
+        self.meta.truncate(n);
         if self.cfg.step.is_some() {
             self.adv.truncate(n * d);
         }
@@ -421,6 +455,12 @@ impl Chain {
         self.cfg
             .step
             .map(|_| &self.adv[i * self.dim..(i + 1) * self.dim])
+    }
+
+    /// Length of a slot's record in `kern`: d + 2 + d(d+1)/2.
+    fn kern_stride(&self) -> usize {
+        let d = self.dim;
+        d + 2 + d * (d + 1) / 2
     }
 
     /// Neighbour count of the k-NN rule at size n.
@@ -492,12 +532,12 @@ impl Chain {
             self.cbuf.extend(self.neigh.iter().map(|e| e.0));
             self.pbuf.extend(self.neigh.iter().map(|e| e.1));
             self.near_lists.set_row(i, &self.cbuf, &self.pbuf);
-            self.near_k[i] = k as u32;
+            self.meta[i].near_k = k as u32;
             if let Some(t) = &mut self.rtree {
                 t.set_bound(i as u32, self.pbuf[k - 1]);
             }
         } else {
-            self.near_k[i] = 0;
+            self.meta[i].near_k = 0;
             if let Some(t) = &mut self.rtree {
                 t.set_bound(i as u32, 0.0);
             }
@@ -529,8 +569,9 @@ impl Chain {
         let x = &x[..d];
         let centre = self.query_centre(i);
         let q = &centre[..d];
-        self.row_stale[i] = false;
-        let (fnorm, dnorm) = (self.drift_norm[i], self.diff_norm[i]);
+        self.meta[i].stale = false;
+        let ks = self.kern_stride();
+        let (fnorm, dnorm) = (self.kern[i * ks + d], self.kern[i * ks + d + 1]);
         // Advected form: the Near ball must hold the diffusion's spread
         // √(‖FFᵀ‖τ) or the covariance cannot be matched (fixed τ, unlike
         // the thesis's Δt ∝ r²). Widen it to ADVECTED_SPREAD standard
@@ -556,6 +597,7 @@ impl Chain {
             }
         }
         self.stats.connects += 1;
+        self.stats.rows_computed += 1;
         self.radius[i] = r;
         self.near_count[i] = near_total as u32;
         if self.neigh.is_empty() || !(r > 0.0) || (fnorm == 0.0 && dnorm == 0.0) {
@@ -564,7 +606,7 @@ impl Chain {
             self.holding[i] = f64::INFINITY;
             self.trans.set_row(i, &[], &[]);
             self.stats.absorbing += 1;
-            self.outcome[i] = KernelOutcome::Absorbing;
+            self.meta[i].outcome = KernelOutcome::Absorbing;
             return Ok(());
         }
         let dt = match self.cfg.step {
@@ -582,7 +624,7 @@ impl Chain {
             Some(_) => mean[..d].copy_from_slice(&self.adv[i * d..(i + 1) * d]),
             None => {
                 for c in 0..d {
-                    mean[c] = self.drift[i * d + c] * dt;
+                    mean[c] = self.kern[i * ks + c] * dt;
                 }
             }
         }
@@ -595,33 +637,48 @@ impl Chain {
             KernelKind::MomentMatched => self.neigh.len().min(MAX_LP_NEIGHBOURS),
             KernelKind::Gaussian => self.neigh.len(),
         };
-        self.dz.clear();
         self.cbuf.clear();
-        for &(j, _) in &self.neigh[..kk] {
-            let j = j as usize;
-            for c in 0..d {
-                self.dz.push(self.states[j * d + c] - x[c]);
+        self.cbuf.extend(self.neigh[..kk].iter().map(|e| e.0));
+        if self.cfg.kernel == KernelKind::MomentMatched {
+            self.dz.clear();
+            for &j in &self.cbuf {
+                let j = j as usize;
+                for c in 0..d {
+                    self.dz.push(self.states[j * d + c] - x[c]);
+                }
             }
-            self.cbuf.push(j as u32);
         }
         self.pbuf.clear();
         self.pbuf.resize(kk, 0.0);
         let dd = d * d;
-        let dynl = LocalDyn {
-            f: &self.drift[i * d..(i + 1) * d],
-            ff: &self.ff[i * dd..(i + 1) * dd],
-            chol: self.chol_ok[i].then(|| &self.chol[i * dd..(i + 1) * dd]),
-        };
+        let chol_ok = self.meta[i].chol_ok;
         let holding = match self.cfg.kernel {
             KernelKind::Gaussian => {
-                if !gaussian_at(d, &self.dz, mean, dt, &dynl, &mut self.work, &mut self.pbuf) {
+                if !chol_ok {
                     return Err(ChainError::SingularDiffusion);
                 }
+                let linv = &self.kern[i * ks + d + 2..(i + 1) * ks];
+                gaussian_gather_at(
+                    d,
+                    &self.states,
+                    &self.cbuf,
+                    x,
+                    mean,
+                    dt,
+                    linv,
+                    &mut self.work,
+                    &mut self.pbuf,
+                );
                 self.stats.gaussian += 1;
-                self.outcome[i] = KernelOutcome::Gaussian;
+                self.meta[i].outcome = KernelOutcome::Gaussian;
                 dt
             }
             KernelKind::MomentMatched => {
+                let dynl = LocalDyn {
+                    f: &self.kern[i * ks..i * ks + d],
+                    ff: &self.ff[i * dd..(i + 1) * dd],
+                    chol: chol_ok.then(|| &self.chol[i * dd..(i + 1) * dd]),
+                };
                 // Rows scaled by the extent of the displacements.
                 let scale = match self.cfg.step {
                     Some(_) => r + mean.iter().map(|v| v * v).sum::<f64>().sqrt(),
@@ -648,7 +705,7 @@ impl Chain {
                     _ => KernelOutcome::Gaussian,
                 };
                 self.tally(tally);
-                self.outcome[i] = tally;
+                self.meta[i].outcome = tally;
                 fit.holding
             }
         };
@@ -684,7 +741,7 @@ impl Chain {
         }
         let mut t = KnnTree::from_points(self.dim, &self.states);
         for i in 0..self.len() {
-            let k = self.near_k[i] as usize;
+            let k = self.meta[i].near_k as usize;
             let b = if k > 0 {
                 self.near_lists.row(i).1.get(k - 1).copied().unwrap_or(0.0)
             } else {
@@ -732,34 +789,53 @@ impl Chain {
         };
         let mut x = [0.0; MAX_INDEX_DIM];
         x[..d].copy_from_slice(&self.states[z * d..(z + 1) * d]);
-        let (lists, near_k, stale) = (&mut self.near_lists, &self.near_k, &mut self.row_stale);
         let k32 = k as u32;
         // Visited: every slot j with ‖z − z_j‖² below its bound, the k-th
-        // squared distance of its list.
+        // squared distance of its list. They are random slots: collect them
+        // first and edit their lists after the traversal, with the lists
+        // prefetched, so the cache misses overlap (their tree bounds stay
+        // upper bounds meanwhile, and are set exactly below).
+        let hits = &mut self.hits;
+        hits.clear();
         tree.nearest_and_reverse(
             &x[..d],
             k,
             z as u32,
             &mut self.neigh,
             &mut |j, d2, bound| {
-                let j = j as usize;
-                if k32 == 0 || j == z || near_k[j] != k32 {
-                    return bound;
+                if k32 != 0 && j as usize != z {
+                    hits.push((j, d2));
                 }
-                let (cols, vals) = lists.row_mut(j);
-                let mut p = vals.len() - 1;
-                debug_assert_eq!(bound, vals[p]);
-                while p > 0 && vals[p - 1] > d2 {
-                    cols[p] = cols[p - 1];
-                    vals[p] = vals[p - 1];
-                    p -= 1;
-                }
-                cols[p] = z as u32;
-                vals[p] = d2;
-                stale[j] = true;
-                vals[vals.len() - 1]
+                bound
             },
         );
+        for &(j, _) in self.hits.iter() {
+            super::prefetch::line(&self.meta[j as usize]);
+            self.near_lists.prefetch(j as usize, false);
+        }
+        for &(j, _) in self.hits.iter() {
+            if self.meta[j as usize].near_k == k32 {
+                self.near_lists.prefetch(j as usize, true);
+            }
+        }
+        for &(j, d2) in self.hits.iter() {
+            let m = &mut self.meta[j as usize];
+            if m.near_k != k32 {
+                continue;
+            }
+            m.stale = true;
+            let (cols, vals) = self.near_lists.row_mut(j as usize);
+            let mut p = vals.len() - 1;
+            debug_assert_eq!(tree.bound(j), Some(vals[p]));
+            while p > 0 && vals[p - 1] > d2 {
+                cols[p] = cols[p - 1];
+                vals[p] = vals[p - 1];
+                p -= 1;
+            }
+            cols[p] = z as u32;
+            vals[p] = d2;
+            tree.tighten_bound(j, vals[vals.len() - 1]);
+        }
         self.rtree = Some(tree);
         self.keep_list(z, k);
         let r = self.neigh.last().map_or(0.0, |e| e.1.sqrt());
@@ -771,9 +847,10 @@ impl Chain {
         self.warm_rows(&near);
         for &j in &near {
             let ju = j as usize;
-            if self.near_k[ju] != k32 {
+            let m = self.meta[ju];
+            if m.near_k != k32 {
                 self.connect(ju)?;
-            } else if self.row_stale[ju] {
+            } else if m.stale {
                 self.neigh.clear();
                 let (c, v) = self.near_lists.row(ju);
                 self.neigh.extend(c.iter().copied().zip(v.iter().copied()));
@@ -781,7 +858,7 @@ impl Chain {
                 self.connect_near(ju, r)?;
             } else {
                 self.stats.connects += 1;
-                self.tally(self.outcome[ju]);
+                self.tally(m.outcome);
             }
             reconnected.push(j);
         }
@@ -789,27 +866,41 @@ impl Chain {
         Ok(())
     }
 
-    /// Load what recomputing the stale rows among `near` reads (their
-    /// caches, their lists and their neighbours' coordinates) in one pass:
-    /// the loads are independent, so their cache misses overlap instead of
-    /// stalling each row in turn (rows of random slots are otherwise
-    /// memory-bound).
+    /// Prefetch what recomputing the stale rows among `near` reads and
+    /// writes (their caches, neighbours' coordinates, holding time, radius,
+    /// and transition rows), so that the cache misses of all rows overlap
+    /// instead of stalling each row in turn (rows of random slots are
+    /// otherwise memory-bound). Changes no result.
     fn warm_rows(&self, near: &[u32]) {
+        use super::prefetch::{line, range};
         let d = self.dim;
-        let dd = d * d;
-        let mut acc = 0.0;
+        let ks = self.kern_stride();
+        let mm = self.cfg.kernel == KernelKind::MomentMatched;
         for &j in near {
             let j = j as usize;
-            if !self.row_stale[j] {
+            if !self.meta[j].stale {
                 continue;
             }
-            acc += self.drift_norm[j] + self.diff_norm[j] + self.drift[j * d] + self.states[j * d];
-            acc += self.ff[j * dd] + self.chol[j * dd] + self.chol[j * dd + dd - 1];
+            range(&self.kern[j * ks..(j + 1) * ks]);
+            line(&self.states[j * d]);
+            line(&self.holding[j]);
+            line(&self.radius[j]);
+            line(&self.near_count[j]);
+            self.trans.prefetch(j, false);
+            if mm {
+                let dd = d * d;
+                range(&self.ff[j * dd..(j + 1) * dd]);
+                range(&self.chol[j * dd..(j + 1) * dd]);
+            }
             for &c in self.near_lists.row(j).0 {
-                acc += self.states[c as usize * d];
+                line(&self.states[c as usize * d]);
             }
         }
-        std::hint::black_box(acc);
+        for &j in near {
+            if self.meta[j as usize].stale {
+                self.trans.prefetch(j as usize, true);
+            }
+        }
     }
 
     /// ConnectState (Alg. 2.2) again for slot `i` with the current n (e.g.
@@ -968,7 +1059,8 @@ impl Chain {
     }
     /// Cached f(z) at slot i (under the reference control).
     pub fn drift_at(&self, i: usize) -> &[f64] {
-        &self.drift[i * self.dim..(i + 1) * self.dim]
+        let ks = self.kern_stride();
+        &self.kern[i * ks..i * ks + self.dim]
     }
     /// Cached F Fᵀ(z) at slot i.
     pub fn diffusion_at(&self, i: usize) -> &[f64] {
@@ -978,7 +1070,9 @@ impl Chain {
     /// Cached Cholesky factor of F Fᵀ(z) at slot i, if positive definite.
     pub fn chol_at(&self, i: usize) -> Option<&[f64]> {
         let dd = self.dim * self.dim;
-        self.chol_ok[i].then(|| &self.chol[i * dd..(i + 1) * dd])
+        self.meta[i]
+            .chol_ok
+            .then(|| &self.chol[i * dd..(i + 1) * dd])
     }
     /// The reference control u₀ the chain was built for.
     pub fn reference_control(&self) -> &[f64] {
@@ -1114,7 +1208,7 @@ mod tests {
                 let mut fresh = c.clone();
                 for &j in &rec {
                     let j = j as usize;
-                    from_lists += (c.near_k[j] == c.knn_k(c.len()) as u32) as usize;
+                    from_lists += (c.meta[j].near_k == c.knn_k(c.len()) as u32) as usize;
                     fresh.reconnect(j).unwrap();
                     let (ca, pa) = c.row(j);
                     let (cb, pb) = fresh.row(j);
@@ -1130,7 +1224,7 @@ mod tests {
                 // every list of the current k is the exact k-NN set
                 let k = c.knn_k(c.len());
                 for i in 0..c.len() {
-                    if c.near_k[i] as usize != k {
+                    if c.meta[i].near_k as usize != k {
                         continue;
                     }
                     let mut d2: Vec<(f64, u32)> = (0..c.len())
@@ -1156,6 +1250,139 @@ mod tests {
                 "{checked} {from_lists}"
             );
         }
+    }
+
+    /// ConnectState (Alg. 2.2) written out from the formulas, independent
+    /// of the chain's caches, lists and trees: brute-force k nearest (ties
+    /// by slot), r their largest distance, f and F Fᵀ from the model,
+    /// Δt = r²/(‖FFᵀ‖₂ + r‖f‖), p ∝ exp(−½ yᵀ(FFᵀΔt)⁻¹y), y = Δz − fΔt
+    /// (nalgebra inverse and eigenvalues), p < MIN_PROB dropped and the rest
+    /// renormalised. Returns the row sorted by column, and Δt.
+    fn reference_row<M: SdeModel>(
+        m: &M,
+        states: &[f64],
+        d: usize,
+        i: usize,
+        k: usize,
+    ) -> (Vec<u32>, Vec<f64>, f64) {
+        use nalgebra::{DMatrix, DVector};
+        let x = &states[i * d..(i + 1) * d];
+        let mut near: Vec<(f64, u32)> = states
+            .chunks_exact(d)
+            .enumerate()
+            .filter(|(j, _)| *j != i)
+            .map(|(j, p)| {
+                (
+                    p.iter().zip(x).map(|(a, b)| (a - b) * (a - b)).sum(),
+                    j as u32,
+                )
+            })
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        near.truncate(k);
+        let r = near.last().unwrap().0.sqrt();
+        let dims = m.dims();
+        let mut f = vec![0.0; d];
+        m.drift(x, &vec![0.0; dims.control], &mut f);
+        let mut bigf = vec![0.0; d * dims.noise];
+        m.diffusion(x, &mut bigf);
+        let bf = DMatrix::from_column_slice(d, dims.noise, &bigf);
+        let ff = &bf * bf.transpose();
+        let ff_norm = ff
+            .clone()
+            .symmetric_eigenvalues()
+            .iter()
+            .fold(0.0f64, |a, v| a.max(v.abs()));
+        let f = DVector::from_vec(f);
+        let dt = r * r / (ff_norm + r * f.norm());
+        let prec = (ff * dt).try_inverse().unwrap();
+        let q: Vec<f64> = near
+            .iter()
+            .map(|&(_, j)| {
+                let z = &states[j as usize * d..(j as usize + 1) * d];
+                let y = DVector::from_fn(d, |c, _| z[c] - x[c]) - &f * dt;
+                0.5 * (y.transpose() * &prec * &y)[(0, 0)]
+            })
+            .collect();
+        let qmin = q.iter().copied().fold(f64::INFINITY, f64::min);
+        let s: f64 = q.iter().map(|v| (qmin - v).exp()).sum();
+        let mut row: Vec<(u32, f64)> = near
+            .iter()
+            .zip(&q)
+            .map(|(&(_, j), v)| (j, (qmin - v).exp() / s))
+            .filter(|e| e.1 >= MIN_PROB)
+            .collect();
+        let kept: f64 = row.iter().map(|e| e.1).sum();
+        row.sort_by_key(|e| e.0);
+        (
+            row.iter().map(|e| e.0).collect(),
+            row.iter().map(|e| e.1 / kept).collect(),
+            dt,
+        )
+    }
+
+    /// Chain row `i` sorted by column.
+    fn sorted_row(c: &Chain, i: usize) -> (Vec<u32>, Vec<f64>) {
+        let (cols, probs) = c.row(i);
+        let mut e: Vec<(u32, f64)> = cols.iter().copied().zip(probs.iter().copied()).collect();
+        e.sort_by_key(|e| e.0);
+        (
+            e.iter().map(|e| e.0).collect(),
+            e.iter().map(|e| e.1).collect(),
+        )
+    }
+
+    fn assert_row_matches<M: SdeModel>(c: &Chain, m: &M, i: usize, k: usize) {
+        let d = c.dim();
+        let (rc, rp, rdt) = reference_row(m, c.states(), d, i, k);
+        let (cc, cp) = sorted_row(c, i);
+        assert_eq!(cc, rc, "columns of slot {i} at n {}", c.len());
+        for (a, b) in cp.iter().zip(&rp) {
+            // exp(−q) with q up to ~30 for kept entries: rounding of q
+            // (and of L⁻¹ vs the inverse) is ≪ 1e-9 relative.
+            assert!((a - b).abs() <= 1e-9 * b, "slot {i}: {a} vs {b}");
+        }
+        let h = c.holding()[i];
+        assert!(
+            (h - rdt).abs() <= 1e-12 * rdt,
+            "Δt of slot {i}: {h} vs {rdt}"
+        );
+    }
+
+    #[test]
+    fn batch_and_incremental_rows_equal_the_connect_state_formulas() {
+        // Gaussian kernel, k-NN rule, ship (d = 4) and OU (d = 2): every row
+        // of a batch chain, and every row (re)connected by each incremental
+        // insertion (Alg. 2.3: the new state and all of Near(z)), equal
+        // ConnectState written out from the formulas on brute-force k-NN.
+        use crate::model::ship::{Ship, ShipParams};
+        let ship = Ship::new(ShipParams::paper(0.01)).unwrap();
+        let ou = ou2(0.5, 1.0, 0.3, 1.0);
+        fn check<M: SdeModel>(m: &M, seed: u64) {
+            let d = m.dims().state;
+            let mut rng = crate::rng::stream(seed, 0);
+            let pts = Sampler::Uniform.sample_many(m.bounds(), 300, &mut rng);
+            let mut c = Chain::batch(m, ChainConfig::gaussian(d), &pts).unwrap();
+            let k = c.knn_k(c.len());
+            for i in 0..c.len() {
+                assert_row_matches(&c, m, i, k);
+            }
+            let mut rec = vec![];
+            let mut x = [0.0; MAX_STATE];
+            let mut checked = 0;
+            for _ in 0..400 {
+                Sampler::Uniform.sample(m.bounds(), &mut rng, &mut x[..d]);
+                c.add_state(m, &x[..d], &mut rec).unwrap();
+                let k = c.knn_k(c.len());
+                for &j in &rec {
+                    assert_row_matches(&c, m, j as usize, k);
+                    checked += 1;
+                }
+            }
+            assert!(checked > 400 * k / 2, "{checked}");
+        }
+        check(&ship, 21);
+        check(&ou, 22);
     }
 
     #[test]

@@ -13,8 +13,9 @@
 //!
 //! only descends where some point's own radius reaches z (a per-region
 //! bound instead of the chain-wide maximum k-th radius). Bounds only need to
-//! be upper bounds: they are raised on [`KnnTree::set_bound`] and tightened
-//! on the way back up every reverse query (a stem's bound becomes the
+//! be upper bounds: they are raised on [`KnnTree::set_bound`], lowered on
+//! [`KnnTree::tighten_bound`], and node bounds are tightened on the way back
+//! up every reverse query and every tightening (a stem's bound becomes the
 //! maximum of its children's).
 //!
 //! Points live in fixed-capacity leaf buckets (coordinates contiguous per
@@ -206,6 +207,21 @@ impl KnnTree {
         self.nodes[node].max_b = self.nodes[node].max_b.max(b);
     }
 
+    /// Reserve room for `extra` more points (leaves split when full, so
+    /// at most one new leaf per BUCKET / 2 insertions).
+    pub fn reserve(&mut self, extra: usize) {
+        let d = self.dim;
+        let leaves = extra / (BUCKET / 2) + 1;
+        self.nodes.reserve(2 * leaves);
+        self.bbox.reserve(4 * leaves * d);
+        self.coords.reserve(leaves * BUCKET * d);
+        self.slots.reserve(leaves * BUCKET);
+        self.bounds.reserve(leaves * BUCKET);
+        self.lens.reserve(leaves);
+        self.leaf_node.reserve(leaves);
+        self.loc.reserve(extra);
+    }
+
     /// Number of points.
     pub fn len(&self) -> usize {
         self.len
@@ -295,6 +311,40 @@ impl KnnTree {
             }
             n.max_b = b;
             node = n.parent;
+        }
+    }
+
+    /// Lower the bound of `slot` to `b` (≤ its current bound) and tighten
+    /// the node bounds above it to the maximum of what lies below.
+    pub fn tighten_bound(&mut self, slot: u32, b: f64) {
+        let Some(&(leaf, pos)) = self.loc.get(slot as usize) else {
+            return;
+        };
+        if leaf == NONE {
+            return;
+        }
+        let leaf = leaf as usize;
+        let base = leaf * BUCKET;
+        self.bounds[base + pos as usize] = b;
+        let len = self.lens[leaf] as usize;
+        let mut m = self.bounds[base..base + len]
+            .iter()
+            .fold(0.0f64, |a, &v| a.max(v));
+        let mut node = self.leaf_node[leaf] as usize;
+        loop {
+            if self.nodes[node].max_b == m {
+                return;
+            }
+            self.nodes[node].max_b = m;
+            let parent = self.nodes[node].parent;
+            if parent == NONE {
+                return;
+            }
+            node = parent as usize;
+            let n = self.nodes[node];
+            m = self.nodes[n.left as usize]
+                .max_b
+                .max(self.nodes[n.right as usize].max_b);
         }
     }
 
@@ -391,10 +441,57 @@ impl KnnTree {
         if self.len == 0 {
             return;
         }
-        self.both_rec(0, q, k, skip, out, visit);
+        // The leaf scans and box distances dominate: compile them for the
+        // common state dimensions (D = 0: run-time d).
+        match self.dim {
+            2 => self.both_rec::<2, F>(0, q, k, skip, out, visit),
+            3 => self.both_rec::<3, F>(0, q, k, skip, out, visit),
+            4 => self.both_rec::<4, F>(0, q, k, skip, out, visit),
+            _ => self.both_rec::<0, F>(0, q, k, skip, out, visit),
+        }
     }
 
-    fn both_rec<F: FnMut(u32, f64, f64) -> f64>(
+    /// Squared distance from `q` to point `e` of the leaf slabs.
+    #[inline(always)]
+    fn point_d2<const D: usize>(&self, e: usize, q: &[f64]) -> f64 {
+        if D == 0 {
+            let d = self.dim;
+            return sq_dist(&self.coords[e * d..(e + 1) * d], q);
+        }
+        let p = &self.coords[e * D..e * D + D];
+        let q = &q[..D];
+        let mut s = 0.0;
+        for c in 0..D {
+            let v = p[c] - q[c];
+            s += v * v;
+        }
+        s
+    }
+
+    /// [`Self::mindist2`] for a dimension known at compile time.
+    #[inline(always)]
+    fn mindist2_d<const D: usize>(&self, node: usize, q: &[f64]) -> f64 {
+        if D == 0 {
+            return self.mindist2(node, q);
+        }
+        let b = &self.bbox[node * 2 * D..node * 2 * D + 2 * D];
+        let q = &q[..D];
+        let mut s = 0.0;
+        for c in 0..D {
+            let (lo, hi) = (b[c], b[D + c]);
+            let v = if q[c] < lo {
+                lo - q[c]
+            } else if q[c] > hi {
+                q[c] - hi
+            } else {
+                0.0
+            };
+            s += v * v;
+        }
+        s
+    }
+
+    fn both_rec<const D: usize, F: FnMut(u32, f64, f64) -> f64>(
         &mut self,
         node: usize,
         q: &[f64],
@@ -405,14 +502,13 @@ impl KnnTree {
     ) {
         let n = self.nodes[node];
         if n.leaf != NONE {
-            let d = self.dim;
             let leaf = n.leaf as usize;
             let len = self.lens[leaf] as usize;
             let base = leaf * BUCKET;
             let mut m = 0.0f64;
             for pos in 0..len {
                 let e = base + pos;
-                let d2 = sq_dist(&self.coords[e * d..(e + 1) * d], q);
+                let d2 = self.point_d2::<D>(e, q);
                 if d2 < self.bounds[e] {
                     self.bounds[e] = visit(self.slots[e], d2, self.bounds[e]);
                 }
@@ -427,7 +523,7 @@ impl KnnTree {
             return;
         }
         let (a, b) = (n.left as usize, n.right as usize);
-        let (da, db) = (self.mindist2(a, q), self.mindist2(b, q));
+        let (da, db) = (self.mindist2_d::<D>(a, q), self.mindist2_d::<D>(b, q));
         let order = if da <= db {
             [(a, da), (b, db)]
         } else {
@@ -436,7 +532,7 @@ impl KnnTree {
         for (c, dc) in order {
             let for_knn = k > 0 && (out.len() < k || dc < out[k - 1].1);
             if for_knn || dc < self.nodes[c].max_b {
-                self.both_rec(c, q, k, skip, out, visit);
+                self.both_rec::<D, F>(c, q, k, skip, out, visit);
             }
         }
         self.nodes[node].max_b = self.nodes[a].max_b.max(self.nodes[b].max_b);

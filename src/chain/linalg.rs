@@ -44,6 +44,22 @@ pub fn forward_sub(l: &[f64], n: usize, b: &mut [f64]) {
     }
 }
 
+/// The inverse M = L⁻¹ of the n × n lower-triangular `l` (non-singular),
+/// packed by rows into `out` (length n(n+1)/2: M₀₀, M₁₀, M₁₁, M₂₀, …), so
+/// that L⁻¹ y is a plain product (no division on the hot path).
+/// Column j of M solves L m = e_j by forward substitution.
+pub fn lower_inverse_packed(l: &[f64], n: usize, out: &mut [f64]) {
+    let mut col = [0.0f64; 16];
+    for j in 0..n {
+        col[..n].fill(0.0);
+        col[j] = 1.0;
+        forward_sub(l, n, &mut col[..n]);
+        for i in j..n {
+            out[i * (i + 1) / 2 + j] = col[i];
+        }
+    }
+}
+
 /// Solve Lᵀ x = y in place for lower-triangular L.
 pub fn backward_sub_t(l: &[f64], n: usize, b: &mut [f64]) {
     for i in (0..n).rev() {

@@ -7,12 +7,19 @@
 //! offsets of length n + 1), which is the layout of [`ChainView`]: the flat
 //! arrays a later stage publishes zero-copy on a slice service.
 
+/// Where a row lives in the slab (one record, so that locating a row of a
+/// random state costs one cache miss, not three).
+#[derive(Clone, Copy, Debug, Default)]
+struct RowLoc {
+    start: u32,
+    len: u32,
+    cap: u32,
+}
+
 /// Transition rows of a chain, slab-allocated.
 #[derive(Clone, Debug, Default)]
 pub struct Transitions {
-    start: Vec<u32>,
-    len: Vec<u32>,
-    cap: Vec<u32>,
+    loc: Vec<RowLoc>,
     cols: Vec<u32>,
     probs: Vec<f64>,
     /// Entries of `cols` not owned by any row (left behind by relocation).
@@ -25,7 +32,7 @@ pub struct Transitions {
 impl Transitions {
     /// Number of rows.
     pub fn rows(&self) -> usize {
-        self.start.len()
+        self.loc.len()
     }
 
     /// Number of stored transitions (live entries).
@@ -34,28 +41,32 @@ impl Transitions {
     }
 
     fn spare(&self) -> usize {
-        self.len
-            .iter()
-            .zip(&self.cap)
-            .map(|(l, c)| (c - l) as usize)
-            .sum()
+        self.loc.iter().map(|r| (r.cap - r.len) as usize).sum()
     }
 
     /// Append an empty row.
     pub fn push_row(&mut self) {
-        self.start.push(self.cols.len() as u32);
-        self.len.push(0);
-        self.cap.push(0);
+        self.loc.push(RowLoc {
+            start: self.cols.len() as u32,
+            len: 0,
+            cap: 0,
+        });
         self.compact = false;
+    }
+
+    /// Reserve room for `rows` more rows holding `entries` more entries in
+    /// total (so that growth by that much allocates nothing).
+    pub fn reserve(&mut self, rows: usize, entries: usize) {
+        self.loc.reserve(rows);
+        self.cols.reserve(entries);
+        self.probs.reserve(entries);
     }
 
     /// Remove the last row (must be empty or its entries become garbage).
     pub fn pop_row(&mut self) {
-        if let Some(c) = self.cap.pop() {
-            self.garbage += c as usize;
+        if let Some(r) = self.loc.pop() {
+            self.garbage += r.cap as usize;
         }
-        self.start.pop();
-        self.len.pop();
         self.compact = false;
     }
 
@@ -63,20 +74,20 @@ impl Transitions {
     pub fn set_row(&mut self, i: usize, cols: &[u32], probs: &[f64]) {
         debug_assert_eq!(cols.len(), probs.len());
         let k = cols.len() as u32;
-        if k > self.cap[i] {
-            // Relocate to the end with some slack so the row can grow a little
-            // before moving again (out-degree grows like log n).
-            self.garbage += self.cap[i] as usize;
-            let cap = k + k / 4 + 2;
-            self.start[i] = self.cols.len() as u32;
-            self.cap[i] = cap;
+        let r = &mut self.loc[i];
+        if k > r.cap {
+            // Relocate to the end with some slack.
+            self.garbage += r.cap as usize;
+            let cap = row_capacity(k);
+            r.start = self.cols.len() as u32;
+            r.cap = cap;
             self.cols.resize(self.cols.len() + cap as usize, 0);
             self.probs.resize(self.probs.len() + cap as usize, 0.0);
         }
-        let s = self.start[i] as usize;
+        r.len = k;
+        let s = r.start as usize;
         self.cols[s..s + k as usize].copy_from_slice(cols);
         self.probs[s..s + k as usize].copy_from_slice(probs);
-        self.len[i] = k;
         self.compact = false;
         if self.garbage > self.cols.len() / 2 && self.garbage > 1 << 16 {
             self.compact();
@@ -85,16 +96,30 @@ impl Transitions {
 
     /// Row `i` as (column slots, probabilities).
     pub fn row(&self, i: usize) -> (&[u32], &[f64]) {
-        let s = self.start[i] as usize;
-        let e = s + self.len[i] as usize;
+        let r = self.loc[i];
+        let (s, e) = (r.start as usize, (r.start + r.len) as usize);
         (&self.cols[s..e], &self.probs[s..e])
+    }
+
+    /// Hint the cache to fetch row `i` (its location record, and the
+    /// row if `entries`; the record is then read, a cache miss of its own).
+    #[inline]
+    pub fn prefetch(&self, i: usize, entries: bool) {
+        super::prefetch::line(&self.loc[i]);
+        if entries {
+            let r = self.loc[i];
+            if r.cap > 0 {
+                super::prefetch::range(&self.cols[r.start as usize..(r.start + r.cap) as usize]);
+                super::prefetch::range(&self.probs[r.start as usize..(r.start + r.cap) as usize]);
+            }
+        }
     }
 
     /// Row `i` as mutable (column slots, values), for in-place edits that
     /// keep its length (e.g. the Near lists of [`super::Chain`]).
     pub fn row_mut(&mut self, i: usize) -> (&mut [u32], &mut [f64]) {
-        let s = self.start[i] as usize;
-        let e = s + self.len[i] as usize;
+        let r = self.loc[i];
+        let (s, e) = (r.start as usize, (r.start + r.len) as usize);
         (&mut self.cols[s..e], &mut self.probs[s..e])
     }
 
@@ -104,7 +129,7 @@ impl Transitions {
             return;
         }
         let n = self.rows();
-        let total: usize = self.len.iter().map(|l| *l as usize).sum();
+        let total: usize = self.loc.iter().map(|r| r.len as usize).sum();
         let mut cols = Vec::with_capacity(total);
         let mut probs = Vec::with_capacity(total);
         let mut offsets = Vec::with_capacity(n + 1);
@@ -115,9 +140,9 @@ impl Transitions {
             probs.extend_from_slice(p);
         }
         offsets.push(cols.len() as u32);
-        for i in 0..n {
-            self.start[i] = offsets[i];
-            self.cap[i] = self.len[i];
+        for (r, &o) in self.loc.iter_mut().zip(&offsets) {
+            r.start = o;
+            r.cap = r.len;
         }
         self.cols = cols;
         self.probs = probs;
@@ -140,12 +165,18 @@ impl Transitions {
     /// Build from CSR arrays.
     pub fn from_csr(offsets: &[u32], cols: &[u32], probs: &[f64]) -> Self {
         let n = offsets.len().saturating_sub(1);
-        let start = offsets[..n].to_vec();
-        let len: Vec<u32> = (0..n).map(|i| offsets[i + 1] - offsets[i]).collect();
+        let loc = (0..n)
+            .map(|i| {
+                let len = offsets[i + 1] - offsets[i];
+                RowLoc {
+                    start: offsets[i],
+                    len,
+                    cap: len,
+                }
+            })
+            .collect();
         Self {
-            start,
-            cap: len.clone(),
-            len,
+            loc,
             cols: cols.to_vec(),
             probs: probs.to_vec(),
             garbage: 0,
@@ -156,11 +187,18 @@ impl Transitions {
 
     /// Bytes held (capacity of the arrays).
     pub fn bytes(&self) -> usize {
-        self.start.capacity() * 12
+        self.loc.capacity() * std::mem::size_of::<RowLoc>()
             + self.cols.capacity() * 4
             + self.probs.capacity() * 8
             + self.offsets.capacity() * 4
     }
+}
+
+/// Slab capacity given to a row of `k` entries when it is (re)located: some
+/// slack so the row can grow a little before moving again (out-degree
+/// grows like log n).
+pub fn row_capacity(k: u32) -> u32 {
+    k + k / 4 + 2
 }
 
 /// A read-only snapshot of a chain as flat slices — the layout published
