@@ -211,17 +211,7 @@ pub fn gaussian_packed_at(
         for i in 0..d {
             y[i] = dz[j * d + i] - mean[i];
         }
-        let mut q = 0.0;
-        let mut row = 0;
-        for i in 0..d {
-            let mut v = 0.0;
-            for c in 0..=i {
-                v += linv[row + c] * y[c];
-            }
-            row += i + 1;
-            q += v * v;
-        }
-        let q = 0.5 * q * inv_dt;
+        let q = 0.5 * packed_lower_sq_norm(linv, &y[..d]) * inv_dt;
         qmin = qmin.min(q);
         work.logw.push(q);
     }
@@ -249,17 +239,7 @@ fn gaussian_packed_d<const D: usize>(
         for i in 0..D {
             y[i] = z[i] - m[i];
         }
-        let mut q = 0.0;
-        let mut row = 0;
-        for i in 0..D {
-            let mut v = 0.0;
-            for c in 0..=i {
-                v += linv[row + c] * y[c];
-            }
-            row += i + 1;
-            q += v * v;
-        }
-        let q = 0.5 * q * inv_dt;
+        let q = 0.5 * packed_lower_sq_norm(linv, &y) * inv_dt;
         qmin = qmin.min(q);
         work.logw.push(q);
     }
@@ -322,21 +302,28 @@ fn gather_d<const D: usize>(
         for i in 0..D {
             y[i] = (z[i] - x[i]) - mean[i];
         }
-        let mut q = 0.0;
-        let mut row = 0;
-        for i in 0..D {
-            let mut v = 0.0;
-            for c in 0..=i {
-                v += linv[row + c] * y[c];
-            }
-            row += i + 1;
-            q += v * v;
-        }
-        let q = 0.5 * q * inv_dt;
+        let q = 0.5 * packed_lower_sq_norm(linv, &y) * inv_dt;
         qmin = qmin.min(q);
         work.logw.push(q);
     }
     normalise_exp(&work.logw, qmin, p);
+}
+
+/// ‖L⁻¹y‖² for L⁻¹ lower-triangular, packed by rows (row i holds its i + 1
+/// leading entries). Inlined, so a fixed-size `y` unrolls.
+#[inline(always)]
+fn packed_lower_sq_norm(linv: &[f64], y: &[f64]) -> f64 {
+    let mut q = 0.0;
+    let mut row = 0;
+    for i in 0..y.len() {
+        let mut v = 0.0;
+        for c in 0..=i {
+            v += linv[row + c] * y[c];
+        }
+        row += i + 1;
+        q += v * v;
+    }
+    q
 }
 
 /// p_j = exp(qmin − q_j) / Σ exp(qmin − q_j).

@@ -360,16 +360,7 @@ impl KnnTree {
         let b = node * 2 * d;
         let mut s = 0.0;
         for c in 0..d {
-            let lo = self.bbox[b + c];
-            let hi = self.bbox[b + d + c];
-            let v = if q[c] < lo {
-                lo - q[c]
-            } else if q[c] > hi {
-                q[c] - hi
-            } else {
-                0.0
-            };
-            s += v * v;
+            s += gap2(self.bbox[b + c], self.bbox[b + d + c], q[c]);
         }
         s
     }
@@ -478,15 +469,7 @@ impl KnnTree {
         let q = &q[..D];
         let mut s = 0.0;
         for c in 0..D {
-            let (lo, hi) = (b[c], b[D + c]);
-            let v = if q[c] < lo {
-                lo - q[c]
-            } else if q[c] > hi {
-                q[c] - hi
-            } else {
-                0.0
-            };
-            s += v * v;
+            s += gap2(b[c], b[D + c], q[c]);
         }
         s
     }
@@ -545,6 +528,19 @@ impl KnnTree {
             + (self.slots.capacity() + self.lens.capacity() + self.leaf_node.capacity()) * 4
             + self.loc.capacity() * 8
     }
+}
+
+/// Squared distance from coordinate `q` to the interval [lo, hi] (0 inside).
+#[inline(always)]
+fn gap2(lo: f64, hi: f64, q: f64) -> f64 {
+    let v = if q < lo {
+        lo - q
+    } else if q > hi {
+        q - hi
+    } else {
+        0.0
+    };
+    v * v
 }
 
 /// Squared Euclidean distance.

@@ -1008,27 +1008,22 @@ mod tests {
         // evidence equals log Σ_z φ⁻(z) N(y; g(z), σ²I) by log-sum-exp.
         let model = ou2();
         let prior = Gaussian::diagonal(&[0.8, -0.4], &[0.3, 0.3]);
-        let mut cf = ChainFilter::from_samples(
-            model.clone(),
-            ChainConfig::moment_matched(2),
-            &Sampler::Uniform,
-            2000,
-            0.05,
-            &mut crate::rng::stream(5, 1),
-        )
-        .unwrap();
+        let make = || {
+            ChainFilter::from_samples(
+                model.clone(),
+                ChainConfig::moment_matched(2),
+                &Sampler::Uniform,
+                2000,
+                0.05,
+                &mut crate::rng::stream(5, 1),
+            )
+            .unwrap()
+        };
+        let mut cf = make();
         cf.set_flush(0.0);
         cf.reset(0.0, &prior);
         // the same updates under the default mass-bounded flush
-        let mut cm = ChainFilter::from_samples(
-            model.clone(),
-            ChainConfig::moment_matched(2),
-            &Sampler::Uniform,
-            2000,
-            0.05,
-            &mut crate::rng::stream(5, 1),
-        )
-        .unwrap();
+        let mut cm = make();
         cm.reset(0.0, &prior);
         // y near the prior, then y ≈ 60σ away (every exp(l) underflows)
         for (k, y) in [[0.7, -0.3], [0.9, -0.5], [12.0, -12.0]].iter().enumerate() {
