@@ -5,7 +5,10 @@
 //! γ_{t_{k+1}}(z) = max_{z'} γ_{t_k}(z') P(z | z') P(y_{t_{k+1}} | z)     (eq. 3.21, back-pointers kept)
 //! ```
 //!
-//! Two forms:
+//! These are the papers' forms, kept as the baselines of the `decoding`
+//! experiment; the converging decoder is
+//! [`crate::filter::layered_decoder`] (same Viterbi, with the corrections
+//! listed there). Two forms:
 //! - [`viterbi`] — on the time-equalised chain M_n^δ with sampled
 //!   observations at given times (paper 001's decoder): one max-product step
 //!   per δ (fractional last step as in the filter), back-pointers per step.

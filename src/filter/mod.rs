@@ -17,6 +17,7 @@ pub mod decoder;
 pub mod ekf;
 pub mod gauss;
 pub mod kalman;
+pub mod layered_decoder;
 pub mod live_chain;
 pub mod pf;
 pub mod resample;
