@@ -84,7 +84,13 @@ fn run(case: Case, seed: u64) -> Gap {
         amp,
         hold,
     } = case;
-    let u = |k: usize| if (k / hold) % 2 == 0 { amp } else { -amp };
+    let u = |k: usize| {
+        if (k / hold).is_multiple_of(2) {
+            amp
+        } else {
+            -amp
+        }
+    };
     let m = cv_model(qp);
     let trace = std::env::var("LC_TRACE").is_ok();
     let prior = Gaussian::diagonal(&[-10.0, 2.0], &[0.3, 0.5]);
