@@ -52,7 +52,12 @@
 //! carry; in the frame only |v − w|·r/2 remains. Measured (experiment
 //! chain-closed-loop drive=1, seeds 1–2): position RMSE 0.30 / 0.30 vs the
 //! PF's 0.29 / 0.32, velocity 0.49 / 0.51 vs 0.48 / 0.55, NEES 4.9 / 4.8;
-//! without the frame 0.45 / 0.54, velocity 1.9 / 1.8.
+//! without the frame 0.45 / 0.54, velocity 1.9 / 1.8. F is integrated by
+//! one Heun step per prediction (exact for the double integrator under a
+//! held control, where Euler lost u·dt²/2 of position per step), and a
+//! version is installed with F = x̂ − (mean of the installed mass), so the
+//! belief mean does not jump at a swap. Tested against the exact Kalman
+//! filter on a constant-velocity model (`live_chain_frame_tests.rs`).
 //!
 //! **Re-anchoring** (off unless [`LiveChainFilter::set_reanchor`]): a
 //! posterior whose effective number of states falls below a threshold is
@@ -135,9 +140,11 @@ struct Pending<S> {
     frame_sums: ([f64; MAX_STATE], [f64; MAX_STATE]),
     chol: Option<[f64; MAX_STATE * MAX_STATE]>,
     lw_max: f64,
-    /// Next state whose weight exp(lw − lw_max) is taken, and their sum.
+    /// Next state whose weight exp(lw − lw_max) is taken, their sum and
+    /// Σ weight·z (the installed mass's mean, which the frame must match).
     next_exp: usize,
     w_sum: f64,
+    wz_sum: [f64; MAX_STATE],
 }
 
 struct Active<S> {
@@ -370,6 +377,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             lw_max: f64::NEG_INFINITY,
             next_exp: 0,
             w_sum: 0.0,
+            wz_sum: [0.0; MAX_STATE],
         });
         Ok(())
     }
@@ -470,9 +478,13 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
                 }
                 while p.next_exp < n {
                     let hi = (p.next_exp + CHUNK).min(n);
-                    for v in &mut self.pre_w[p.next_exp..hi] {
+                    for (i, v) in (p.next_exp..hi).zip(&mut self.pre_w[p.next_exp..hi]) {
                         *v = (*v - p.lw_max).exp();
                         p.w_sum += *v;
+                        let z = view.state(i);
+                        for a in 0..d {
+                            p.wz_sum[a] += *v * z[a];
+                        }
                     }
                     p.next_exp = hi;
                     if t0.elapsed() >= budget && p.next_exp < n {
@@ -553,9 +565,13 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         }
         // The belief is cached after each update.
         let g = self.belief();
+        // F = x̂ − (mean of the installed mass), not x̂ − c: the weights'
+        // mean differs from c by the discretisation (finite states, cell
+        // volumes), and that difference would be a jump of the belief mean
+        // at every version.
         for a in 0..d {
             self.frame_w[a] = p.frame_sums.0[a] / n as f64;
-            self.frame_d[a] = g.mean[a] - p.frame_sums.1[a] / n as f64;
+            self.frame_d[a] = g.mean[a] - p.wz_sum[a] * inv;
         }
         self.pending_d = [0.0; MAX_STATE];
         true
@@ -799,21 +815,54 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         }
     }
 
-    /// F += (f(x̂, u) − f(x̂ − F, u₀) + w)·dt (see [`Self::set_moving_frame`]).
+    /// F over `dt` with `u` held (see [`Self::set_moving_frame`]): with
+    /// z̄ = x̂ − F the mass mean in frame coordinates (moved by the chain at
+    /// f(z̄, u₀) − w) and r(F, z̄) = f(z̄ + F, u) − f(z̄, u₀) + w, one Heun
+    /// step
+    ///
+    /// ```text
+    /// k₁ = r(F, z̄),  k₂ = r(F + k₁·dt, z̄ + (f(z̄, u₀) − w)·dt),  F += (k₁ + k₂)·dt/2
+    /// ```
+    ///
+    /// — second order; exact for a linear SDE whose A² = 0 (the double
+    /// integrator: F_p gains F_v·dt + u·dt²/2). The former Euler step
+    /// F += k₁·dt dropped u·dt²/2 of position per step under a control,
+    /// a bias the chain filter could only observe away.
     fn move_frame(&mut self, u: &[f64], dt: f64) {
         let d = self.dims.state;
         let nu = self.dims.control;
+        let u0 = [0.0; MAX_CONTROL];
         let m = self.last.mean;
-        let mut z = [0.0; MAX_STATE];
+        let mut zb = [0.0; MAX_STATE];
         for k in 0..d {
-            z[k] = m[k] - self.frame_d[k];
+            zb[k] = m[k] - self.frame_d[k];
         }
-        let (mut fu, mut f0) = ([0.0; MAX_STATE], [0.0; MAX_STATE]);
-        self.model.drift(&m[..d], u, &mut fu[..d]);
-        self.model
-            .drift(&z[..d], &[0.0; MAX_CONTROL][..nu], &mut f0[..d]);
+        // r(F, z̄) into `r`; f(z̄, u₀) into `f0`.
+        let rate = |f: &[f64; MAX_STATE],
+                    zb: &[f64; MAX_STATE],
+                    r: &mut [f64; MAX_STATE],
+                    f0: &mut [f64; MAX_STATE]| {
+            let mut x = [0.0; MAX_STATE];
+            for k in 0..d {
+                x[k] = zb[k] + f[k];
+            }
+            self.model.drift(&x[..d], u, &mut r[..d]);
+            self.model.drift(&zb[..d], &u0[..nu], &mut f0[..d]);
+            for k in 0..d {
+                r[k] += self.frame_w[k] - f0[k];
+            }
+        };
+        let (mut k1, mut k2, mut f0) = ([0.0; MAX_STATE], [0.0; MAX_STATE], [0.0; MAX_STATE]);
+        let f = self.frame_d;
+        rate(&f, &zb, &mut k1, &mut f0);
+        let (mut f1, mut z1) = (f, zb);
         for k in 0..d {
-            let r = fu[k] - f0[k] + self.frame_w[k];
+            f1[k] += k1[k] * dt;
+            z1[k] += (f0[k] - self.frame_w[k]) * dt;
+        }
+        rate(&f1, &z1, &mut k2, &mut f0);
+        for k in 0..d {
+            let r = 0.5 * (k1[k] + k2[k]);
             if r.is_finite() {
                 self.frame_d[k] += r * dt;
             }
@@ -1252,6 +1301,10 @@ impl<M: SdeModel, S: AsRef<[u64]> + Send> BayesFilter for LiveChainFilter<M, S> 
         LiveChainFilter::belief(self)
     }
 }
+
+#[cfg(test)]
+#[path = "live_chain_frame_tests.rs"]
+mod frame_tests;
 
 #[cfg(test)]
 mod tests {

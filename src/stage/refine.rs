@@ -116,6 +116,83 @@ impl<M: SdeModel + ?Sized> SdeModel for Framed<'_, M> {
     }
 }
 
+/// How a moving-frame version is drawn and built (the `refine` settings).
+#[derive(Clone, Debug)]
+pub struct FrameBuild {
+    /// Sampling std = `inflate` × belief std ...
+    pub inflate: f64,
+    /// ... mixed with this fraction of uniform draws ...
+    pub uniform_fraction: f64,
+    /// ... the std floored at this fraction of the bounds' width.
+    pub min_std_fraction: f64,
+    pub chain: ChainConfig,
+    /// δ's upper bound (the filter's sample period).
+    pub dt: f64,
+}
+
+/// The sampling distribution N(mean, (inflate·σ)²) of `belief`'s
+/// covariance (σ floored), mixed with uniform draws.
+pub fn sampler_around<M: SdeModel + ?Sized>(
+    model: &M,
+    belief: &Gaussian,
+    mean: &[f64],
+    p: &FrameBuild,
+) -> Option<Sampler> {
+    let d = belief.dim;
+    let b = model.bounds();
+    let mut g = *belief;
+    g.mean_mut().copy_from_slice(mean);
+    for i in 0..d {
+        let floor = p.min_std_fraction * (b.hi()[i] - b.lo()[i]);
+        let v = g.cov_at(i, i);
+        if v < floor * floor {
+            g.set_cov(i, i, floor * floor);
+        }
+    }
+    Sampler::around(&g, p.inflate, p.uniform_fraction)
+}
+
+/// A moving-frame version (`refine.moving_frame`): a batch chain (Alg. 2.1)
+/// of `n` states drawn around `belief` ([`sampler_around`]), built for
+/// f(x, u₀) − w with w the mean uncontrolled drift of its states (the
+/// filter computes the same w from the snapshot,
+/// [`crate::filter::live_chain::frame_of`]), and δ fitted to its holding
+/// times.
+pub fn build_framed<M: SdeModel + ?Sized>(
+    model: &M,
+    belief: &Gaussian,
+    n: usize,
+    p: &FrameBuild,
+    rng: &mut SimRng,
+) -> Result<(Chain, TimeEqualized), crate::chain::ChainError> {
+    let d = belief.dim;
+    let nu = model.dims().control;
+    let sampler = sampler_around(model, belief, &belief.mean[..d], p);
+    let mut pts = vec![0.0; n * d];
+    for x in pts.chunks_exact_mut(d) {
+        match &sampler {
+            Some(smp) => smp.sample(model.bounds(), rng, x),
+            None => Sampler::Uniform.sample(model.bounds(), rng, x),
+        }
+    }
+    let mut w = [0.0; MAX_STATE];
+    let mut f = [0.0; MAX_STATE];
+    for x in pts.chunks_exact(d) {
+        model.drift(x, &[0.0; MAX_CONTROL][..nu], &mut f[..d]);
+        for a in 0..d {
+            w[a] += f[a];
+        }
+    }
+    for wa in &mut w[..d] {
+        *wa /= n as f64;
+    }
+    let framed = Framed { inner: model, w };
+    let c = Chain::batch(&framed, p.chain.clone(), &pts)?;
+    let mut eq = TimeEqualized::new(p.dt)?;
+    eq.fit(c.holding());
+    Ok((c, eq))
+}
+
 /// The construction parameters of the pipeline's chain: moment-matching
 /// kernel with the k-NN Near rule of `refine.knn_c`, built for u₀ = 0.
 pub fn chain_config(cfg: &PipelineConfig, dim: usize) -> ChainConfig {
@@ -300,22 +377,18 @@ impl Refiner {
 
     /// The sampling distribution around the belief (σ floored).
     fn sampler_at(&self, mean: &[f64]) -> Option<Sampler> {
-        let d = self.belief.dim;
-        let b = self.model.bounds();
-        let mut g = self.belief;
-        g.mean_mut().copy_from_slice(mean);
-        for i in 0..d {
-            let floor = self.cfg.refine.min_std_fraction * (b.hi()[i] - b.lo()[i]);
-            let v = g.cov_at(i, i);
-            if v < floor * floor {
-                g.set_cov(i, i, floor * floor);
-            }
+        sampler_around(&self.model, &self.belief, mean, &self.frame_build())
+    }
+
+    /// The moving-frame construction parameters of this config.
+    fn frame_build(&self) -> FrameBuild {
+        FrameBuild {
+            inflate: self.cfg.refine.inflate,
+            uniform_fraction: self.cfg.refine.uniform_fraction,
+            min_std_fraction: self.cfg.refine.min_std_fraction,
+            chain: chain_config(&self.cfg, self.belief.dim),
+            dt: self.cfg.sample_dt(),
         }
-        Sampler::around(
-            &g,
-            self.cfg.refine.inflate,
-            self.cfg.refine.uniform_fraction,
-        )
     }
 
     /// The belief mean carried `tau` seconds ahead by the uncontrolled
@@ -370,48 +443,24 @@ impl Refiner {
     /// so the states need not be placed ahead of it. Each version is a
     /// lineage of its own.
     fn build_framed(&mut self) -> Result<usize, StageError> {
-        let d = self.belief.dim;
-        let nu = self.model.dims().control;
         // The first version is a crude chain of `initial_states`, at once.
         let n = if self.chain.is_none() {
             self.cfg.refine.initial_states
         } else {
             self.cfg.refine.max_states
         };
-        let sampler = self.sampler_at(&self.belief.mean[..d]);
-        let mut pts = vec![0.0; n * d];
-        for p in pts.chunks_exact_mut(d) {
-            match &sampler {
-                Some(smp) => smp.sample(self.model.bounds(), &mut self.rng, p),
-                None => Sampler::Uniform.sample(self.model.bounds(), &mut self.rng, p),
-            }
-        }
-        let mut w = [0.0; MAX_STATE];
-        let mut f = [0.0; MAX_STATE];
-        for p in pts.chunks_exact(d) {
-            self.model.drift(p, &[0.0; MAX_CONTROL][..nu], &mut f[..d]);
-            for a in 0..d {
-                w[a] += f[a];
-            }
-        }
-        for wa in &mut w[..d] {
-            *wa /= n as f64;
-        }
-        let framed = Framed {
-            inner: &self.model,
-            w,
-        };
-        let c = Chain::batch(&framed, chain_config(&self.cfg, d), &pts).map_err(|e| {
-            StageError::Build {
-                what: "chain",
-                reason: e.to_string(),
-            }
-        })?;
-        self.eq = TimeEqualized::new(self.cfg.sample_dt()).map_err(|e| StageError::Build {
+        let (c, eq) = build_framed(
+            &self.model,
+            &self.belief,
+            n,
+            &self.frame_build(),
+            &mut self.rng,
+        )
+        .map_err(|e| StageError::Build {
             what: "chain",
             reason: e.to_string(),
         })?;
-        self.eq.fit(c.holding());
+        self.eq = eq;
         self.chain = Some(c);
         self.frames += 1;
         Ok(n)
