@@ -123,6 +123,10 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     // 1: print every run's errors (chain sizes, then PF sizes) to stderr
     let dump = p.usize(&mut rep, "dump_runs", 0)?;
     let chain_draws = p.usize(&mut rep, "chain_draws", 5)?.max(1);
+    // slot order of the chain's states: along the Hilbert curve (memory
+    // locality of the sparse filter step, [`crate::chain::order`]) or as
+    // placed
+    let state_order = p.choice(&mut rep, "state_order", "hilbert", &["hilbert", "placed"])?;
     p.finish()?;
     rep.param("mu", 2.0);
     rep.param("prior", "N((0.5, 0), 0.2^2 I)");
@@ -191,6 +195,11 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                     eliminate(&cand, 2, n)
                 }
                 _ => predictive_points(&model, &prior, t_end, n, uniform_fraction, dt, &mut rng),
+            };
+            let pts = if state_order == "hilbert" {
+                crate::chain::order::hilbert_sorted(&pts, 2)
+            } else {
+                pts
             };
             let chain = Chain::batch(&model, cfg.clone(), &pts)?;
             let mut f = ChainFilter::new(model.clone(), chain, dt)?;
