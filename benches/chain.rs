@@ -339,6 +339,93 @@ fn sim_group<M: SdeModel + Clone>(
     g.finish();
 }
 
+/// One filter step (predict 0.01 s + update) in the `vanderpol`
+/// experiment's setting: Van der Pol (μ = 2, e₁ = e₂ = σ = 0.1), states
+/// placed as there (`predictive_even`: 3n predictive candidates thinned by
+/// sample elimination), advected moment-matched chain with τ = 0.01,
+/// k = ⌈1.5 log n⌉, flush 10⁻⁴, on a simulated 10 s record (the filter is
+/// reset to the prior when it ends). `order`: the slots as placed, or
+/// along the Hilbert curve (the experiment's default).
+fn vdp_group(c: &mut Criterion, order: &str) {
+    use beliefbus::experiments::chain_util::predictive_points;
+    use beliefbus::experiments::vanderpol::{eliminate, VDP_FLUSH_MASS};
+    let group = format!("filter_step_vdp/{order}");
+    let vdp_sizes = [2_000usize, 4_000, 8_000];
+    let re_ok = {
+        let args: Vec<String> = std::env::args().skip(1).collect();
+        match args.iter().find(|a| !a.starts_with('-')) {
+            None => true,
+            Some(f) => regex::Regex::new(f)
+                .map(|re| {
+                    vdp_sizes
+                        .iter()
+                        .any(|n| re.is_match(&format!("{group}/{n}")))
+                })
+                .unwrap_or(true),
+        }
+    };
+    if !re_ok {
+        return;
+    }
+    let model = VanDerPol::new(VanDerPolParams::default()).unwrap();
+    let prior = Gaussian::diagonal(&[0.5, 0.0], &[0.2, 0.2]);
+    let dt = 0.01;
+    let mut rng = stream(6, 0);
+    let x0 = draw_from(&model, &prior, &mut rng);
+    let rec = simulate(&model, &x0, dt, 1000, 1e-3, &mut rng);
+    let clock = Clock::from_env();
+    let mut g = c.benchmark_group(group.clone());
+    g.sample_size(20).measurement_time(Duration::from_secs(3));
+    for n in vdp_sizes {
+        let mut rng = stream(7, n as u64);
+        let cand = predictive_points(&model, &prior, 10.0, 3 * n, 0.1, dt, &mut rng);
+        let pts = eliminate(&cand, 2, n);
+        let pts = order_points(order, pts);
+        let mut cf = ChainConfig::moment_matched(2).with_step(dt);
+        cf.near = beliefbus::chain::NearRule::Knn { c: 1.5 };
+        let ch = Chain::batch(&model, cf, &pts).unwrap();
+        let mut f = ChainFilter::new(model.clone(), ch, dt).unwrap();
+        f.set_flush_mass(VDP_FLUSH_MASS);
+        f.reset(0.0, &prior);
+        let mut k = 0usize;
+        g.bench_function(BenchmarkId::from_parameter(n), |b| {
+            b.iter_custom(|iters| {
+                let mut total = Duration::ZERO;
+                for _ in 0..iters {
+                    if k == rec.times.len() {
+                        k = 0;
+                        f.reset(0.0, &prior);
+                    }
+                    let t0 = clock.now();
+                    f.predict(rec.times[k], &[]).unwrap();
+                    let _ = f.update(&Measurement::full(&rec.ys[k..k + 1]));
+                    std::hint::black_box(f.belief());
+                    total += clock.now() - t0;
+                    k += 1;
+                }
+                total
+            })
+        });
+        eprintln!(
+            "{group} n={n}: out-degree {:.2}, mean support {:.0}",
+            f.chain().mean_out_degree(),
+            f.mean_support()
+        );
+    }
+    g.finish();
+}
+
+/// The placed points in the requested slot order: `hilbert` along the
+/// Hilbert curve ([`beliefbus::chain::order`], as the experiment does),
+/// else as placed.
+fn order_points(order: &str, pts: Vec<f64>) -> Vec<f64> {
+    if order == "hilbert" {
+        beliefbus::chain::order::hilbert_sorted(&pts, 2)
+    } else {
+        pts
+    }
+}
+
 fn benches(c: &mut Criterion) {
     let vdp = VanDerPol::new(VanDerPolParams::default()).unwrap();
     let ship = Ship::new(ShipParams::paper(0.01)).unwrap();
@@ -358,6 +445,8 @@ fn benches(c: &mut Criterion) {
         step_group_with(c, "d2", &vdp, &[0.5], kernel, true);
         step_group_with(c, "d4", &ship, &[5.0, 0.3], kernel, true);
     }
+    vdp_group(c, "placed");
+    vdp_group(c, "hilbert");
 }
 
 criterion_group!(chain, benches);

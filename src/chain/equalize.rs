@@ -20,7 +20,13 @@
 //! [`PropagationKernel`] stores P^δ in both orientations as flat CSR:
 //! incoming edges (for the forward map φ⁻ = (P^δ)ᵀ φ, a gather — no write
 //! conflicts, one pass) and optionally outgoing rows (for the backward map
-//! P^δ v of the smoother).
+//! P^δ v of the smoother). With the rows it also keeps *push rows*: each
+//! row of P^δ with its self-loop folded in as an ordinary (column, weight)
+//! entry, first, and left out where p^δ(z|z) = 0 (the advected chain's
+//! states without a self-loop), as interleaved (weight, column) pairs. The
+//! filter's sparse step ([`PropagationKernel::forward_sparse`]) walks only
+//! the rows of the states carrying mass, in one uniform loop that marks the
+//! receiving states by an epoch stamp and appends them without a branch.
 
 use super::storage::ChainView;
 use super::ChainError;
@@ -121,6 +127,18 @@ pub struct PropagationKernel {
     row_off: Vec<u32>,
     row_cols: Vec<u32>,
     row_w: Vec<f64>,
+    /// Push rows (with the rows): row z = [(p^δ(z|z), z) if > 0] ++ the
+    /// CSR row's (p^δ(z'|z), z').
+    push_off: Vec<u32>,
+    push: Vec<PushEdge>,
+}
+
+/// One entry of a push row: weight and target slot, interleaved so a row
+/// is one contiguous run of memory.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct PushEdge {
+    w: f64,
+    col: u32,
 }
 
 impl PropagationKernel {
@@ -182,6 +200,28 @@ impl PropagationKernel {
             for edge in 0..nnz {
                 self.row_w[edge] = self.in_w[self.row_map[edge] as usize];
             }
+            self.push_off.clear();
+            self.push_off.reserve(n + 1);
+            self.push_off.push(0);
+            self.push.clear();
+            self.push.reserve(nnz + n);
+            for i in 0..n {
+                if self.stay[i] > 0.0 {
+                    self.push.push(PushEdge {
+                        w: self.stay[i],
+                        col: i as u32,
+                    });
+                }
+                let (s, e) = (
+                    view.row_offsets[i] as usize,
+                    view.row_offsets[i + 1] as usize,
+                );
+                self.push.extend((s..e).map(|edge| PushEdge {
+                    w: self.row_w[edge],
+                    col: view.cols[edge],
+                }));
+                self.push_off.push(self.push.len() as u32);
+            }
         }
     }
 
@@ -191,11 +231,19 @@ impl PropagationKernel {
     pub fn set_jump_probs(&mut self, holding: &[f64], row_offsets: &[u32], probs: &[f64]) {
         for i in 0..self.n {
             let scale = (self.delta / holding[i]).min(1.0);
-            for edge in row_offsets[i] as usize..row_offsets[i + 1] as usize {
+            let (s, e) = (row_offsets[i] as usize, row_offsets[i + 1] as usize);
+            // the push row's jump entries follow its self-loop entry, if any
+            let p0 = if self.backward {
+                self.push_off[i + 1] as usize - (e - s)
+            } else {
+                0
+            };
+            for edge in s..e {
                 let w = scale * probs[edge];
                 self.in_w[self.row_map[edge] as usize] = w;
                 if self.backward {
                     self.row_w[edge] = w;
+                    self.push[p0 + edge - s].w = w;
                 }
             }
         }
@@ -254,51 +302,76 @@ impl PropagationKernel {
         }
     }
 
-    /// Sparse form of [`Self::forward_fraction`] (θ = 1: one full step)
-    /// over the `active` slots (every slot with φ ≠ 0 must be listed):
-    /// pushes φ along the outgoing rows into `out`, which must be all zero
-    /// on entry; the slots receiving mass are appended to `next` (once
-    /// each, `mark` all false on entry and on return). Cost
-    /// O(|active| · out-degree) instead of O(nnz). Requires the backward
-    /// (row) orientation.
+    /// Sparse form of [`Self::forward_fraction`] over the support: for
+    /// every slot z in `active` (each slot with φ ≠ 0 must be listed, once)
+    /// pushes (1 − θ) φ(z) to z and θ φ(z) along z's push row (P^δ with its
+    /// self-loop) into `out`, which must be all zero on entry, and zeroes
+    /// φ(z) — so on return `phi` is all zero and `out` holds
+    /// (1 − θ) φ + θ (P^δ)ᵀ φ. The slots receiving mass are written to
+    /// `next` (once each, in order of first arrival; for θ = 1 a slot
+    /// without self-loop that receives nothing is left out). `seen` is the
+    /// epoch stamp of each slot: every entry must differ from `epoch` on
+    /// entry, and the received slots carry `epoch` on return (the caller
+    /// advances `epoch` per call, so nothing is cleared). Cost
+    /// O(|active| · out-degree) instead of O(nnz), no allocation once
+    /// `next` has capacity n + 1. Requires the backward (row) orientation.
+    #[allow(clippy::too_many_arguments)]
     pub fn forward_sparse(
         &self,
         theta: f64,
-        phi: &[f64],
+        phi: &mut [f64],
         active: &[u32],
         out: &mut [f64],
         next: &mut Vec<u32>,
-        mark: &mut [bool],
+        seen: &mut [u32],
+        epoch: u32,
     ) {
         assert!(self.backward, "kernel built without rows");
+        let n = self.n;
+        assert!(phi.len() >= n && out.len() >= n && seen.len() >= n);
         next.clear();
+        next.reserve(n + 1);
+        let base = next.as_mut_ptr();
+        let mut len = 0usize;
+        let keep = 1.0 - theta;
         for &z in active {
             let zi = z as usize;
+            assert!(zi < n, "active slot {zi} out of range");
             let v = phi[zi];
             if v == 0.0 {
                 continue;
             }
-            let keep = (1.0 - theta) + theta * self.stay[zi];
-            if !mark[zi] {
-                mark[zi] = true;
-                next.push(z);
-            }
-            out[zi] += keep * v;
-            let s = self.row_off[zi] as usize;
-            let e = self.row_off[zi + 1] as usize;
-            let tv = theta * v;
-            for (w, &c) in self.row_w[s..e].iter().zip(&self.row_cols[s..e]) {
-                let ci = c as usize;
-                if !mark[ci] {
-                    mark[ci] = true;
-                    next.push(c);
+            phi[zi] = 0.0;
+            // SAFETY (this block and the loop below): every index is a slot
+            // < n — zi checked above, and `col` was written by `rebuild`
+            // from a view column, which indexed `in_off` (length n + 1) there
+            // so it is < n; `out` and `seen` have length ≥ n. `next` has
+            // capacity ≥ n + 1 and `len` counts distinct slots (each slot's
+            // stamp is set to `epoch` when it is first counted), so
+            // len ≤ n and the write at `base + len` is in bounds.
+            unsafe {
+                if keep > 0.0 {
+                    *base.add(len) = z;
+                    len += (*seen.get_unchecked(zi) != epoch) as usize;
+                    *seen.get_unchecked_mut(zi) = epoch;
+                    *out.get_unchecked_mut(zi) += keep * v;
                 }
-                out[ci] += w * tv;
+                let s = *self.push_off.get_unchecked(zi) as usize;
+                let e = *self.push_off.get_unchecked(zi + 1) as usize;
+                let tv = theta * v;
+                for edge in self.push.get_unchecked(s..e) {
+                    let c = edge.col as usize;
+                    // branch-free append: write, count it if not yet seen
+                    *base.add(len) = edge.col;
+                    len += (*seen.get_unchecked(c) != epoch) as usize;
+                    *seen.get_unchecked_mut(c) = epoch;
+                    *out.get_unchecked_mut(c) += edge.w * tv;
+                }
             }
         }
-        for &z in next.iter() {
-            mark[z as usize] = false;
-        }
+        // SAFETY: the first `len` entries were written above, len ≤ n + 1
+        // ≤ capacity.
+        unsafe { next.set_len(len) };
     }
 
     /// P^δ v: out(z) = p^δ(z|z) v(z) + Σ_{z'} p^δ(z'|z) v(z'). Requires
@@ -327,6 +400,8 @@ impl PropagationKernel {
             + self.row_off.capacity() * 4
             + self.row_cols.capacity() * 4
             + self.row_w.capacity() * 8
+            + self.push_off.capacity() * 4
+            + self.push.capacity() * std::mem::size_of::<PushEdge>()
     }
 }
 
@@ -396,17 +471,26 @@ mod tests {
         // sparse push over the support equals the dense gather, also for
         // a fraction of a step
         for theta in [1.0, 0.37] {
-            let phi = [0.4, 0.0, 0.6];
+            let mut phi = [0.4, 0.0, 0.6];
             let (mut dense, mut sparse) = ([0.0; 3], [0.0; 3]);
             k.forward_fraction(theta, &phi, &mut dense);
-            let (mut next, mut mark) = (vec![], vec![false; 3]);
-            k.forward_sparse(theta, &phi, &[0, 2], &mut sparse, &mut next, &mut mark);
+            let (mut next, mut seen) = (vec![], vec![0u32; 3]);
+            k.forward_sparse(
+                theta,
+                &mut phi,
+                &[0, 2],
+                &mut sparse,
+                &mut next,
+                &mut seen,
+                1,
+            );
             for z in 0..3 {
                 assert!((dense[z] - sparse[z]).abs() < 1e-15);
             }
+            assert_eq!(phi, [0.0; 3]);
             next.sort_unstable();
             assert_eq!(next, vec![0, 1, 2]);
-            assert!(mark.iter().all(|m| !m));
+            assert_eq!(seen, vec![1; 3]);
         }
         let v = [1.0, -2.0, 3.0];
         k.backward(&v, &mut out);
@@ -414,5 +498,137 @@ mod tests {
             let want: f64 = (0..3).map(|c| p[z][c] * v[c]).sum();
             assert!((out[z] - want).abs() < 1e-15);
         }
+    }
+
+    /// A random chain of `n` states: rows of 1–6 distinct columns with
+    /// random probabilities; holding times δ (no self-loop) on every third
+    /// state, else in (δ, 10δ).
+    fn random_chain(n: usize, delta: f64, seed: u64) -> (Vec<f64>, Vec<u32>, Vec<u32>, Vec<f64>) {
+        use rand::RngExt;
+        let mut rng = crate::rng::stream(seed, 0);
+        let mut holding = vec![];
+        let (mut off, mut cols, mut probs) = (vec![0u32], vec![], vec![]);
+        for i in 0..n {
+            holding.push(if i % 3 == 0 {
+                delta
+            } else {
+                delta * (1.0 + 9.0 * rng.random::<f64>())
+            });
+            let k = 1 + (rng.random::<f64>() * 6.0) as usize;
+            let mut row: Vec<u32> = vec![];
+            while row.len() < k {
+                let c = (rng.random::<f64>() * n as f64) as u32;
+                if c as usize != i && !row.contains(&c) {
+                    row.push(c);
+                }
+            }
+            let w: Vec<f64> = (0..k).map(|_| 0.05 + rng.random::<f64>()).collect();
+            let sum: f64 = w.iter().sum();
+            cols.extend(row);
+            probs.extend(w.iter().map(|x| x / sum));
+            off.push(cols.len() as u32);
+        }
+        (holding, off, cols, probs)
+    }
+
+    #[test]
+    fn sparse_push_over_the_support_equals_the_dense_step() {
+        // The filter's sparse step against the dense gather (P^δ)ᵀ φ on a
+        // random chain with and without self-loops, over several steps (the
+        // support grows), for θ = 1 and a fraction, after a re-weighting of
+        // the rows (control tilt) too: equal up to rounding, every slot
+        // with mass is listed once, φ is consumed, and the epoch stamps
+        // need no clearing between calls.
+        use rand::RngExt;
+        let n = 300;
+        let delta = 0.01;
+        let (holding, off, cols, probs) = random_chain(n, delta, 7);
+        let states: Vec<f64> = (0..n).map(|i| i as f64).collect();
+        let ids: Vec<u32> = (0..n as u32).collect();
+        let radius = vec![1.0; n];
+        let view = ChainView {
+            dim: 1,
+            states: &states,
+            ids: &ids,
+            holding: &holding,
+            radius: &radius,
+            row_offsets: &off,
+            cols: &cols,
+            probs: &probs,
+        };
+        view.validate().unwrap();
+        let mut k = PropagationKernel::build(&view, delta, true);
+        let mut seen = vec![0u32; n];
+        let mut epoch = 0u32;
+        let mut rng = crate::rng::stream(7, 1);
+        for round in 0..2 {
+            if round == 1 {
+                // re-weight every row (as the control tilt does)
+                let tilted: Vec<f64> = (0..n)
+                    .flat_map(|i| {
+                        let (s, e) = (off[i] as usize, off[i + 1] as usize);
+                        let w: Vec<f64> = (s..e).map(|_| 0.1 + rng.random::<f64>()).collect();
+                        let sum: f64 = w.iter().sum();
+                        w.into_iter().map(move |x| x / sum)
+                    })
+                    .collect();
+                k.set_jump_probs(&holding, &off, &tilted);
+            }
+            for theta in [1.0, 0.37] {
+                // mass on 5 states, then 4 steps
+                let mut phi = vec![0.0; n];
+                let mut active: Vec<u32> = vec![0, 1, 2, 3, 150];
+                for (j, &z) in active.iter().enumerate() {
+                    phi[z as usize] = 0.1 + 0.05 * j as f64;
+                }
+                let mut dense = phi.clone();
+                let (mut out, mut next) = (vec![0.0; n], Vec::new());
+                for _ in 0..4 {
+                    let mut d2 = vec![0.0; n];
+                    k.forward_fraction(theta, &dense, &mut d2);
+                    dense = d2;
+                    epoch += 1;
+                    k.forward_sparse(
+                        theta, &mut phi, &active, &mut out, &mut next, &mut seen, epoch,
+                    );
+                    assert!(phi.iter().all(|&v| v == 0.0), "φ not consumed");
+                    std::mem::swap(&mut phi, &mut out);
+                    std::mem::swap(&mut active, &mut next);
+                    let mut listed = active.clone();
+                    listed.sort_unstable();
+                    listed.dedup();
+                    assert_eq!(listed.len(), active.len(), "a slot listed twice");
+                    let with_mass: Vec<u32> =
+                        (0..n as u32).filter(|&z| phi[z as usize] != 0.0).collect();
+                    assert_eq!(listed, with_mass, "θ = {theta}");
+                    for z in 0..n {
+                        assert!(
+                            (phi[z] - dense[z]).abs() <= 1e-15,
+                            "θ = {theta}, slot {z}: {} vs {}",
+                            phi[z],
+                            dense[z]
+                        );
+                        assert_eq!(seen[z] == epoch, phi[z] != 0.0);
+                    }
+                    // mass is conserved
+                    assert!((phi.iter().sum::<f64>() - 1.0).abs() < 1e-14);
+                }
+            }
+        }
+        // θ = 1 leaves out a self-loop-free state that receives nothing
+        // (holding = δ: every third slot; no row into it)
+        let z0 = (0..n as u32)
+            .step_by(3)
+            .find(|z| !cols.contains(z))
+            .expect("the seeded chain has an unreached slot");
+        assert_eq!(k.stay()[z0 as usize], 0.0);
+        let mut phi = vec![0.0; n];
+        phi[z0 as usize] = 1.0;
+        let (mut out, mut next) = (vec![0.0; n], Vec::new());
+        epoch += 1;
+        k.forward_sparse(1.0, &mut phi, &[z0], &mut out, &mut next, &mut seen, epoch);
+        assert!(!next.contains(&z0) && !next.is_empty());
+        assert_eq!(out[z0 as usize], 0.0);
+        assert!((out.iter().sum::<f64>() - 1.0).abs() < 1e-15);
     }
 }

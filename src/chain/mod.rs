@@ -31,6 +31,7 @@ pub mod kernel;
 pub mod knn_tree;
 pub mod linalg;
 pub mod nnls;
+pub mod order;
 pub mod prefetch;
 pub mod retire;
 pub mod sample;

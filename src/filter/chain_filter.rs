@@ -137,10 +137,16 @@ pub struct ChainFilter<M: SdeModel> {
     /// Slots with φ > 0 (the support), for sparse propagation.
     active: Vec<u32>,
     next: Vec<u32>,
-    mark: Vec<bool>,
+    /// Epoch stamps of the sparse step (see
+    /// [`PropagationKernel::forward_sparse`]) and the current epoch.
+    seen: Vec<u32>,
+    epoch: u32,
     flush: Flush,
-    /// Mass per binary exponent of the update's weights (flush cut).
-    exp_hist: Box<[f64; EXP_BUCKETS]>,
+    /// Mass per binary exponent of the update's weights (flush cut), in
+    /// two interleaved halves (even and odd positions of the support, so
+    /// consecutive weights of one exponent do not chain their additions
+    /// through memory); the bucket's mass is the sum of both.
+    exp_hist: Box<[f64; 2 * EXP_BUCKETS]>,
     discarded_last: f64,
     discarded_total: f64,
     /// Σ over updates of the support after the update's flush, and the
@@ -181,11 +187,16 @@ impl<M: SdeModel> ChainFilter<M> {
             belief: Cell::new(None),
             prior: Gaussian::zeros(dims.state),
             steps: 0,
-            active: (0..n as u32).collect(),
-            next: Vec::with_capacity(n),
-            mark: vec![false; n],
+            active: {
+                let mut a = Vec::with_capacity(n + 1);
+                a.extend(0..n as u32);
+                a
+            },
+            next: Vec::with_capacity(n + 1),
+            seen: vec![0; n],
+            epoch: 0,
             flush: Flush::Mass(FLUSH_MASS),
-            exp_hist: Box::new([0.0; EXP_BUCKETS]),
+            exp_hist: Box::new([0.0; 2 * EXP_BUCKETS]),
             discarded_last: 0.0,
             discarded_total: 0.0,
             support_sum: 0,
@@ -291,6 +302,8 @@ impl<M: SdeModel> ChainFilter<M> {
 
     fn rebuild_active(&mut self) {
         self.active.clear();
+        // capacity n + 1: `active` and `next` swap in the sparse step
+        self.active.reserve(self.phi.len() + 1);
         self.active.extend(
             self.phi
                 .iter()
@@ -306,17 +319,21 @@ impl<M: SdeModel> ChainFilter<M> {
     fn step(&mut self, theta: f64) {
         let n = self.phi.len();
         if self.active.len() * 4 < n {
+            self.epoch = self.epoch.wrapping_add(1);
+            if self.epoch == 0 {
+                self.seen.fill(0);
+                self.epoch = 1;
+            }
+            // consumes φ (all zero on return): `tmp` stays all zero
             self.kern.forward_sparse(
                 theta,
-                &self.phi,
+                &mut self.phi,
                 &self.active,
                 &mut self.tmp,
                 &mut self.next,
-                &mut self.mark,
+                &mut self.seen,
+                self.epoch,
             );
-            for &z in &self.active {
-                self.phi[z as usize] = 0.0;
-            }
             std::mem::swap(&mut self.phi, &mut self.tmp);
             std::mem::swap(&mut self.active, &mut self.next);
         } else {
@@ -401,7 +418,10 @@ impl<M: SdeModel> ChainFilter<M> {
         let view = self.chain.view();
         self.kern.rebuild(&view, delta, true);
         self.tmp.resize(n, 0.0);
-        self.mark.resize(n, false);
+        self.seen.resize(n, 0);
+        // scratch of the sparse step (capacity n + 1, see forward_sparse)
+        self.next.clear();
+        self.next.reserve(n + 1);
         self.rebuild_active();
         self.ll.resize(n, 0.0);
         self.tilt_probs.resize(self.chain.nnz(), 0.0);
@@ -508,7 +528,7 @@ impl<M: SdeModel> ChainFilter<M> {
             if mass_rule {
                 // w ≤ 1: biased exponent ≤ 1023
                 let b = ((w.to_bits() >> 52) as usize).min(EXP_BUCKETS - 1);
-                self.exp_hist[b] += w;
+                self.exp_hist[b + (j & 1) * EXP_BUCKETS] += w;
                 out.lo = out.lo.min(b);
                 out.hi = out.hi.max(b);
             }
@@ -521,19 +541,22 @@ impl<M: SdeModel> ChainFilter<M> {
     fn clear_hist(&mut self, w: &Weighed) {
         if w.lo <= w.hi {
             self.exp_hist[w.lo..=w.hi].fill(0.0);
+            self.exp_hist[EXP_BUCKETS + w.lo..=EXP_BUCKETS + w.hi].fill(0.0);
         }
     }
 
     /// The update's last pass: normalise, flush weights below `cut`,
     /// compact the support and accumulate the moments. `D` is the state
     /// dimension (0: any, read at run time). Returns the dropped
-    /// (unnormalised) mass, Σ w² and the kept support size.
+    /// (unnormalised) mass, Σ w², the kept support size and the moments
+    /// (centred at the prior mean, as in `moments`; a local accumulator, so
+    /// its sums can live in registers).
     fn flush_pass<const D: usize>(
         &mut self,
         cut: f64,
         inv: f64,
-        acc: &mut WeightedMoments,
-    ) -> (f64, f64, usize) {
+    ) -> (f64, f64, usize, WeightedMoments) {
+        let mut acc = WeightedMoments::new(&self.prior.mean[..self.dims.state]);
         let mut s2 = 0.0;
         let mut dropped = 0.0;
         let mut keep = 0;
@@ -559,7 +582,7 @@ impl<M: SdeModel> ChainFilter<M> {
             self.phi[z] = w;
             s2 += w * w;
         }
-        (dropped, s2, keep)
+        (dropped, s2, keep, acc)
     }
 
     fn moments(&self) -> Gaussian {
@@ -764,8 +787,12 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
                 let mut cum = 0.0;
                 // buckets below `lo` are empty
                 let mut b = w.lo;
-                while b <= w.hi && cum + self.exp_hist[b] <= budget {
-                    cum += self.exp_hist[b];
+                while b <= w.hi {
+                    let h = self.exp_hist[b] + self.exp_hist[EXP_BUCKETS + b];
+                    if cum + h > budget {
+                        break;
+                    }
+                    cum += h;
                     b += 1;
                 }
                 // every weight with biased exponent < b, i.e. below 2^(b−1023)
@@ -778,13 +805,12 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
         // The belief's moments in the same pass (what `moments` computes,
         // in the same order, so `belief` after an update is free).
         let d = self.dims.state;
-        let mut acc = WeightedMoments::new(&self.prior.mean[..d]);
-        let (dropped, s2, keep) = match d {
-            1 => self.flush_pass::<1>(cut, inv, &mut acc),
-            2 => self.flush_pass::<2>(cut, inv, &mut acc),
-            3 => self.flush_pass::<3>(cut, inv, &mut acc),
-            4 => self.flush_pass::<4>(cut, inv, &mut acc),
-            _ => self.flush_pass::<0>(cut, inv, &mut acc),
+        let (dropped, s2, keep, acc) = match d {
+            1 => self.flush_pass::<1>(cut, inv),
+            2 => self.flush_pass::<2>(cut, inv),
+            3 => self.flush_pass::<3>(cut, inv),
+            4 => self.flush_pass::<4>(cut, inv),
+            _ => self.flush_pass::<0>(cut, inv),
         };
         self.discarded_last = dropped * inv;
         self.discarded_total += self.discarded_last;
@@ -1055,6 +1081,78 @@ mod tests {
             let (cached, fresh) = (cf.belief(), cf.moments());
             assert_eq!(cached.mean, fresh.mean, "step {k}");
             assert_eq!(cached.cov, fresh.cov, "step {k}");
+        }
+    }
+
+    #[test]
+    fn sparse_prediction_equals_the_dense_map() {
+        // Once the flush has shrunk the support below n/4, predict runs the
+        // sparse push over the support; it must give what the dense
+        // gather (P^δ)ᵀ applied Δ/δ times gives to the same φ, for the
+        // thesis chain (several δ steps per Δ) and the advected chain (one).
+        let model = ou2();
+        let dt = 0.05;
+        let prior = Gaussian::diagonal(&[0.8, -0.4], &[0.3, 0.3]);
+        for cfg in [
+            ChainConfig::moment_matched(2),
+            ChainConfig::moment_matched(2).with_step(dt),
+        ] {
+            let mut cf = ChainFilter::from_samples(
+                model.clone(),
+                cfg,
+                &Sampler::Uniform,
+                4000,
+                dt,
+                &mut crate::rng::stream(8, 1),
+            )
+            .unwrap();
+            cf.set_flush_mass(1e-6);
+            cf.reset(0.0, &prior);
+            let n = cf.chain().len();
+            let mut sparse_steps = 0;
+            for (k, y) in [[0.8, -0.4], [0.7, -0.3], [0.75, -0.35], [0.6, -0.3]]
+                .iter()
+                .enumerate()
+            {
+                cf.update(&Measurement::full(y)).unwrap();
+                let before = cf.weights().to_vec();
+                let support = cf.support();
+                assert_eq!(
+                    support,
+                    before.iter().filter(|&&w| w != 0.0).count(),
+                    "support lists exactly the slots with mass"
+                );
+                let t = dt * (k + 1) as f64;
+                let steps0 = cf.substeps();
+                cf.predict(t, &[]).unwrap();
+                let steps = (cf.substeps() - steps0) as usize;
+                assert!(steps >= 1);
+                let mut dense = before.clone();
+                let mut tmp = vec![0.0; n];
+                for _ in 0..steps {
+                    cf.kernel().forward(&dense, &mut tmp);
+                    std::mem::swap(&mut dense, &mut tmp);
+                }
+                let got = cf.weights();
+                for z in 0..n {
+                    assert!(
+                        // rounding only: the two sum in different orders
+                        (got[z] - dense[z]).abs() <= 1e-15 * steps as f64,
+                        "slot {z}: {} vs {}",
+                        got[z],
+                        dense[z]
+                    );
+                }
+                assert_eq!(
+                    cf.support(),
+                    got.iter().filter(|&&w| w != 0.0).count(),
+                    "support after predict"
+                );
+                if support * 4 < n {
+                    sparse_steps += 1;
+                }
+            }
+            assert!(sparse_steps >= 3, "sparse path ran {sparse_steps} times");
         }
     }
 
