@@ -150,6 +150,18 @@ fn the_closed_loop_runs_across_five_processes_and_leaves_nothing_behind() {
         "{obs}"
     );
     assert!((0..=16).contains(&unaccounted), "{obs}");
+    // Every stage's drops carry a reason (refine's superseded and lost
+    // beliefs, the plant's skipped ticks included).
+    for s in ["ingest", "filter", "control", "refine", "plant"] {
+        let st = &r["stages"][s];
+        let by: u64 = st["dropped_by_reason"]
+            .as_object()
+            .unwrap_or_else(|| panic!("stages.{s}.dropped_by_reason: {st}"))
+            .values()
+            .map(|v| v.as_u64().unwrap())
+            .sum();
+        assert_eq!(by, st["dropped"].as_u64().unwrap(), "stages.{s}: {st}");
+    }
     // The status lines and the tables were printed.
     assert!(stderr(&o).contains("sensor->control p50"), "{}", stderr(&o));
     let table = String::from_utf8_lossy(&o.stdout);

@@ -86,7 +86,8 @@ pub enum DropReason {
     /// does that silently), not delivered by the publisher, or published
     /// before this subscriber was connected.
     Lost = 0,
-    /// Received but skipped as too old (the freshest-wins policy).
+    /// Received but skipped as too old (the freshest-wins policy); for the
+    /// plant, sample ticks skipped after it fell far behind its period.
     Stale = 1,
     /// Received but replaced by a newer value before it was used (a
     /// latest-value read).

@@ -12,7 +12,7 @@
 //! the control in force. (The plant reads them at its tick, so it never needs
 //! to be woken by the controller.)
 
-use super::{stopped, Metrics, StageError, StageIdentity, StatsPort};
+use super::{stopped, DropReason, Metrics, StageError, StageIdentity, StatsPort};
 use crate::ipc::{Bus, Control, Publisher, SensorSample, StageKind, StageStats, Subscriber, Truth};
 use crate::model::discrete::em_integrate;
 use crate::model::{simulate_observation, SdeModel};
@@ -197,7 +197,7 @@ pub fn run_resumed(
         if now > t_k + MAX_BEHIND * period_ns {
             // Far behind (e.g. the machine stalled): skip to the present.
             let skip = (now - t_k) / period_ns;
-            m.dropped += skip;
+            m.count_drop(DropReason::Stale, skip);
             k += skip;
             t_k += skip * period_ns;
         }

@@ -48,7 +48,9 @@
 //! With a filter backend other than `chain` nobody reads the chain: refine
 //! then only follows the beliefs and reports (no rounds, no snapshots).
 
-use super::{guarded, stopped, Metrics, SeqTracker, StageError, StageIdentity, StatsPort};
+use super::{
+    guarded, stopped, DropReason, Metrics, SeqTracker, StageError, StageIdentity, StatsPort,
+};
 use crate::belief::Gaussian;
 use crate::chain::snapshot::{self, SnapshotMeta};
 use crate::chain::{
@@ -610,7 +612,8 @@ pub fn run_with(
             if w == Wake::Data {
                 let (latest, skipped) = belief.latest()?;
                 if let Some(b) = latest {
-                    m.dropped += skipped + seq.observe(b.header.seq);
+                    m.count_drop(DropReason::Superseded, skipped);
+                    m.count_drop(DropReason::Lost, seq.observe(b.header.seq));
                     m.processed += 1;
                     refiner.set_belief_at(&b.gaussian(), b.header.t_valid_ns as f64 * 1e-9);
                 }
