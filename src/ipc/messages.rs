@@ -579,6 +579,9 @@ pub struct StageStats {
     /// extra cost), p50 and p99, ns.
     pub chain_fallback_p50_ns: u64,
     pub chain_fallback_p99_ns: u64,
+    /// Filter: installs that left the fallback untethered (the chain was
+    /// doubtful).
+    pub chain_fallback_untethered: u64,
 }
 
 impl Default for StageStats {
@@ -620,6 +623,7 @@ impl Default for StageStats {
             chain_stale_max_ns: 0,
             chain_fallback_p50_ns: 0,
             chain_fallback_p99_ns: 0,
+            chain_fallback_untethered: 0,
         }
     }
 }

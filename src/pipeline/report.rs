@@ -17,6 +17,7 @@
 //!   chain:    {versions, states, delta_s, swap_p50_us, swap_p99_us, mass_lost_max,
 //!              published, refine_states, fallback_steps, fallback_episodes,
 //!              fallback_by_cause: {degenerate, age, evidence}, fallback_reinits,
+//!              fallback_untethered,
 //!              fallback_cost_p50_us, fallback_cost_p99_us, stale_max_ms}   (filter backend `chain`; issue 4)
 //!   shared_memory: {files_removed, files_left} }
 //! ```
@@ -242,7 +243,9 @@ impl ReportInput {
     /// (`stage::chain_guard`): beliefs published from the fallback
     /// (`fallback_steps`), stale episodes (`fallback_episodes`, by the
     /// cause that opened them), chain beliefs re-initialised from the
-    /// fallback when a version ended an episode (`fallback_reinits`), the
+    /// fallback when a version ended an episode (`fallback_reinits`),
+    /// installs that left the fallback apart from a doubtful chain
+    /// (`fallback_untethered`), the
     /// fallback's predict + update time per observation — its extra cost —
     /// (`fallback_cost_p50_us`/`p99_us`), and the oldest installed version
     /// at a filter step (`stale_max_ms`; null before any install).
@@ -276,6 +279,7 @@ impl ReportInput {
                     .collect::<Map<String, Value>>(),
             ),
             "fallback_reinits": f.map(|s| s.chain_fallback_reinits).unwrap_or(0),
+            "fallback_untethered": f.map(|s| s.chain_fallback_untethered).unwrap_or(0),
             "fallback_cost_p50_us": opt(f.filter(|s| s.chain_fallback_p50_ns > 0).map(|s| us(s.chain_fallback_p50_ns))),
             "fallback_cost_p99_us": opt(f.filter(|s| s.chain_fallback_p99_ns > 0).map(|s| us(s.chain_fallback_p99_ns))),
             "stale_max_ms": opt(f.filter(|_| swaps > 0).map(|s| s.chain_stale_max_ns as f64 * 1e-6)),

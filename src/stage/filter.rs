@@ -24,7 +24,7 @@
 //! step per observation (predict + update of a 4-state model, a few µs)
 //! plus an O(d²) reset per version, allocation-free.
 
-use super::chain_guard::StaleGuard;
+use super::chain_guard::{Install, StaleGuard};
 use super::{
     guarded, secs_since, stopped, DropReason, Metrics, SeqTracker, StageError, StageIdentity,
     StatsPort,
@@ -369,7 +369,8 @@ impl GuardedChain {
 
     /// A version was installed at `now_ns`: end a stale episode by
     /// re-initialising the chain from the fallback, else tether the
-    /// fallback to the chain (see [`super::chain_guard`]).
+    /// fallback to the chain unless the chain was doubtful (see
+    /// [`super::chain_guard::Install`]).
     fn installed(&mut self, now_ns: u64) {
         // Both filters at the same time first.
         self.after_publish();
@@ -377,16 +378,20 @@ impl GuardedChain {
             return;
         };
         let t = self.chain.time();
-        if self.guard.installed(now_ns) {
-            let g = f.belief();
-            if g.is_finite() {
-                self.chain.reset(t, &g);
+        match self.guard.installed(now_ns) {
+            Install::Reinit => {
+                let g = f.belief();
+                if g.is_finite() {
+                    self.chain.reset(t, &g);
+                }
             }
-        } else {
-            let g = self.chain.belief();
-            if g.is_finite() && f.time() == t {
-                f.reset(t, &g);
+            Install::Tether => {
+                let g = self.chain.belief();
+                if g.is_finite() && f.time() == t {
+                    f.reset(t, &g);
+                }
             }
+            Install::Keep => {}
         }
     }
 

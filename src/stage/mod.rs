@@ -305,6 +305,7 @@ impl Metrics {
             chain_stale_max_ns: self.chain.guard.stale_max_ns,
             chain_fallback_p50_ns: self.chain.fallback_cost.quantile(0.5),
             chain_fallback_p99_ns: self.chain.fallback_cost.quantile(0.99),
+            chain_fallback_untethered: self.chain.guard.untethered,
             dropped_by_reason: self.dropped_by_reason,
             ..StageStats::default()
         };
