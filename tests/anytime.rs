@@ -1,13 +1,18 @@
 //! The anytime chain in the running pipeline (issue 4): the default scenario
 //! filters on the refine stage's live chain snapshots, and losing refine
-//! does not stop beliefs or controls.
+//! (killed, or stopped) does not stop beliefs or controls: the stale-chain
+//! fallback (`stage::chain_guard`) takes over and the estimate holds.
 //!
 //! Pipelines are run one at a time (they pin themselves to the same cores).
 
-use beliefbus::ipc::{cleanup, Belief, Bus, BusConfig, Control, StageKind, StageStats};
+use beliefbus::ipc::{
+    belief_status, cleanup, Belief, Bus, BusConfig, Control, StageKind, StageStats,
+};
 use serde_json::Value;
+use std::io::BufRead;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -125,11 +130,27 @@ fn watch(
     filter: &mut Option<StageStats>,
     d: Duration,
 ) -> (u64, u64) {
-    let (mut nb, mut nc) = (0, 0);
+    let (nb, nc, _) = watch_flagged(beliefs, controls, stats, filter, d);
+    (nb, nc)
+}
+
+/// [`watch`], also counting the beliefs that came from the stale-chain
+/// fallback (flagged `CHAIN_FALLBACK`).
+fn watch_flagged(
+    beliefs: &beliefbus::ipc::Subscriber<Belief>,
+    controls: &beliefbus::ipc::Subscriber<Control>,
+    stats: &beliefbus::ipc::Subscriber<StageStats>,
+    filter: &mut Option<StageStats>,
+    d: Duration,
+) -> (u64, u64, u64) {
+    let (mut nb, mut nc, mut nf) = (0, 0, 0);
     let end = Instant::now() + d;
     while Instant::now() < end {
-        while beliefs.receive().unwrap().is_some() {
+        while let Some(b) = beliefs.receive().unwrap() {
             nb += 1;
+            if b.status & belief_status::CHAIN_FALLBACK != 0 {
+                nf += 1;
+            }
         }
         while controls.receive().unwrap().is_some() {
             nc += 1;
@@ -141,7 +162,7 @@ fn watch(
         }
         std::thread::sleep(Duration::from_millis(5));
     }
-    (nb, nc)
+    (nb, nc, nf)
 }
 
 #[test]
@@ -193,21 +214,40 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
         let refine = children.0.iter_mut().find(|(k, _)| *k == "refine").unwrap();
         refine.1.kill().unwrap(); // SIGKILL
         refine.1.wait().unwrap();
-        // Let the dead publisher go, then count for two seconds.
+        // Let the dead publisher go and its last version go stale
+        // (filter.chain.stale.max_age_ms, 1 s), then count for two seconds.
         watch(
             &beliefs,
             &controls,
             &stats,
             &mut filter,
-            Duration::from_millis(500),
+            Duration::from_millis(1200),
         );
-        let (nb, nc) = watch(
+        let (nb, nc, nf) = watch_flagged(
             &beliefs,
             &controls,
             &stats,
             &mut filter,
             Duration::from_secs(2),
         );
+        // The filter reports once per run.stats_period_s: wait for the
+        // report that covers the beliefs counted (the chain stays stale).
+        let t1 = Instant::now();
+        while filter
+            .is_none_or(|f: StageStats| f.chain_fallback_steps < before.chain_fallback_steps + nf)
+        {
+            assert!(
+                t1.elapsed() < Duration::from_secs(30),
+                "fallback steps not counted: {nf}"
+            );
+            watch(
+                &beliefs,
+                &controls,
+                &stats,
+                &mut filter,
+                Duration::from_millis(100),
+            );
+        }
         let after = filter.unwrap();
         // 100 Hz sensor: about 200 beliefs in two seconds; controls keep
         // flowing at (at least half) the rate they had before the kill.
@@ -217,8 +257,13 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
             "controls after the kill: {nc}, before: {nc0}"
         );
         assert!(after.processed > before.processed + 100);
-        // Still on the chain (the last snapshot stays mapped while held).
+        // Still on the chain (the last snapshot stays mapped while held),
+        // and the moving frame's last version is stale one second after
+        // the kill: from then on the fallback's beliefs go out, flagged
+        // and counted (an age episode, unless the chain went stale sooner).
         assert!(after.chain_states > 0 && after.chain_versions >= before.chain_versions);
+        assert!(nf > 100, "fallback beliefs after the kill: {nf} of {nb}");
+        assert!(after.chain_fallback_episodes.iter().sum::<u64>() >= 1);
         for (k, c) in children.0.iter_mut().filter(|(k, _)| *k != "refine") {
             // SAFETY: signalling a child we spawned and have not reaped.
             unsafe { libc::kill(c.id() as i32, libc::SIGTERM) };
@@ -232,4 +277,267 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
         "{:?}",
         cleanup::resources(&prefix)
     );
+}
+
+/// `beliefbus run` with its stderr read line by line; Ctrl-C'd when dropped
+/// (a failed assertion must not leave the pipeline running).
+struct Run {
+    child: Child,
+    lines: Receiver<String>,
+    log: Vec<String>,
+}
+
+impl Run {
+    fn start(args: &[&str]) -> Run {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_beliefbus"))
+            .args(args)
+            .current_dir(root())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let err = child.stderr.take().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for l in std::io::BufReader::new(err).lines().map_while(Result::ok) {
+                if tx.send(l).is_err() {
+                    break;
+                }
+            }
+        });
+        Run {
+            child,
+            lines: rx,
+            log: Vec::new(),
+        }
+    }
+
+    /// Wait for a line containing `pat`; returns it.
+    fn expect(&mut self, pat: &str) -> String {
+        let deadline = Instant::now() + PATIENCE;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(l) => {
+                    self.log.push(l.clone());
+                    if l.contains(pat) {
+                        return l;
+                    }
+                }
+                Err(RecvTimeoutError::Timeout) => {
+                    panic!("never saw '{pat}':\n{}", self.log.join("\n"))
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    panic!("exited before '{pat}':\n{}", self.log.join("\n"))
+                }
+            }
+        }
+    }
+
+    fn prefix(&mut self) -> String {
+        let l = self.expect("bus: prefix=");
+        l.split_whitespace()
+            .find_map(|w| w.strip_prefix("prefix="))
+            .unwrap()
+            .to_string()
+    }
+
+    fn catch_up(&mut self) {
+        while let Ok(l) = self.lines.try_recv() {
+            self.log.push(l);
+        }
+    }
+
+    /// Ctrl-C, then the exit status (after the report is written).
+    fn interrupt(&mut self) -> std::process::ExitStatus {
+        // SAFETY: signalling our own child.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGINT) };
+        let st = self.child.wait().unwrap();
+        while let Ok(l) = self.lines.recv_timeout(Duration::from_secs(5)) {
+            self.log.push(l);
+        }
+        st
+    }
+}
+
+impl Drop for Run {
+    fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(None)) {
+            // SAFETY: as in `interrupt`.
+            unsafe { libc::kill(self.child.id() as i32, libc::SIGINT) };
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// Generous: the suite runs test binaries in parallel on two cores.
+const PATIENCE: Duration = Duration::from_secs(180);
+
+/// The pid in a line `... <stage> (pid N ...`.
+fn pid_of(line: &str) -> i32 {
+    let rest = line.split("(pid ").nth(1).unwrap();
+    rest.split(|c: char| !c.is_ascii_digit())
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap()
+}
+
+/// The default scenario (moving-frame chain, closed loop) with refine
+/// SIGSTOPped mid-run — a refine that gets no CPU at all, until the
+/// supervisor kills it for its missed heartbeat and restarts it: beliefs
+/// and controls keep flowing, the fallback's beliefs go out while the
+/// chain is stale (counted as an age episode), a version after the
+/// restart re-initialises the chain from the fallback, and the run's
+/// position error stays below the raw measurements'.
+#[test]
+fn a_stopped_refine_hands_the_belief_to_the_fallback_and_the_estimate_holds() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let report = tmp("stopped-refine.json");
+    let mut run = Run::start(&[
+        "run",
+        "--duration",
+        "0",
+        "--quiet",
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    let prefix = run.prefix();
+    let _teardown = Teardown(prefix.clone());
+    run.expect("supervisor: started plant ");
+    let stopped;
+    {
+        let bus = Bus::open(
+            &BusConfig {
+                prefix: prefix.clone(),
+                instance: "ship".into(),
+            },
+            "watcher",
+        )
+        .unwrap();
+        let beliefs = bus.subscriber_with::<Belief>(256, false).unwrap();
+        let controls = bus.subscriber_with::<Control>(256, false).unwrap();
+        let stats = bus.subscriber_with::<StageStats>(64, false).unwrap();
+        let mut filter = None;
+        let t0 = Instant::now();
+        while filter.is_none_or(|f: StageStats| f.chain_versions < 3) {
+            assert!(t0.elapsed() < PATIENCE, "no chain installed");
+            watch(
+                &beliefs,
+                &controls,
+                &stats,
+                &mut filter,
+                Duration::from_millis(100),
+            );
+        }
+        let (_, nc0) = watch(
+            &beliefs,
+            &controls,
+            &stats,
+            &mut filter,
+            Duration::from_secs(2),
+        );
+        let before = filter.unwrap();
+        run.catch_up();
+        stopped = run
+            .log
+            .iter()
+            .rev()
+            .find(|l| l.contains("started refine ") || l.contains("restarted refine "))
+            .map(|l| pid_of(l))
+            .unwrap();
+        // SAFETY: signalling a stage process of our launcher.
+        assert_eq!(unsafe { libc::kill(stopped, libc::SIGSTOP) }, 0);
+        // The last version goes stale after filter.chain.stale.max_age_ms
+        // (1 s); count the three seconds after that.
+        watch(
+            &beliefs,
+            &controls,
+            &stats,
+            &mut filter,
+            Duration::from_millis(1200),
+        );
+        let (nb, nc, nf) = watch_flagged(
+            &beliefs,
+            &controls,
+            &stats,
+            &mut filter,
+            Duration::from_secs(3),
+        );
+        // The filter reports once per run.stats_period_s: wait for the
+        // report that covers the beliefs counted.
+        let t1 = Instant::now();
+        while filter
+            .is_none_or(|f: StageStats| f.chain_fallback_steps < before.chain_fallback_steps + nf)
+        {
+            assert!(
+                t1.elapsed() < PATIENCE,
+                "fallback steps not counted: {nf} seen"
+            );
+            watch(
+                &beliefs,
+                &controls,
+                &stats,
+                &mut filter,
+                Duration::from_millis(100),
+            );
+        }
+        let during = filter.unwrap();
+        assert!(nb > 150, "beliefs with refine stopped: {nb}");
+        assert!(
+            nf * 10 >= nb * 9,
+            "fallback beliefs with refine stopped: {nf} of {nb}"
+        );
+        assert!(
+            nc > 0 && 2 * nc >= nc0,
+            "controls with refine stopped: {nc}, before: {nc0}"
+        );
+        assert!(during.chain_fallback_episodes[1] > before.chain_fallback_episodes[1]);
+        // Let it go (the supervisor may already have killed and restarted
+        // it for its missed heartbeat): a new version ends the episode and
+        // re-initialises the chain from the fallback's belief.
+        // SAFETY: as above; a dead pid only fails.
+        unsafe { libc::kill(stopped, libc::SIGCONT) };
+        let t1 = Instant::now();
+        while filter
+            .is_none_or(|f: StageStats| f.chain_fallback_reinits <= during.chain_fallback_reinits)
+        {
+            assert!(
+                t1.elapsed() < PATIENCE,
+                "no re-initialisation after refine came back"
+            );
+            watch(
+                &beliefs,
+                &controls,
+                &stats,
+                &mut filter,
+                Duration::from_millis(100),
+            );
+        }
+        // A few seconds more on the chain before the end.
+        watch(
+            &beliefs,
+            &controls,
+            &stats,
+            &mut filter,
+            Duration::from_secs(3),
+        );
+    }
+    let st = run.interrupt();
+    assert!(st.success(), "{st:?}:\n{}", run.log.join("\n"));
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    assert_eq!(r["filter_backend"], "chain");
+    let c = &r["chain"];
+    assert!(c["fallback_by_cause"]["age"].as_u64().unwrap() >= 1, "{c}");
+    assert!(c["fallback_reinits"].as_u64().unwrap() >= 1, "{c}");
+    assert!(c["fallback_steps"].as_u64().unwrap() >= 250, "{c}");
+    assert!(c["stale_max_ms"].as_f64().unwrap() > 3000.0, "{c}");
+    let acc = &r["accuracy"];
+    assert!(
+        acc["rmse_position"].as_f64().unwrap() < acc["rmse_position_raw"].as_f64().unwrap(),
+        "{acc}"
+    );
+    assert!(r["control"]["controls_received"].as_u64().unwrap() > 0);
+    assert_eq!(r["shared_memory"]["files_left"], 0);
+    assert!(cleanup::resources(&prefix).is_empty());
 }

@@ -37,6 +37,8 @@ fn cfg(prefix: &str, max_age_us: f64) -> beliefbus::pipeline::PipelineConfig {
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/default.toml"),
         &[
             format!("run.prefix=\"{prefix}\""),
+            // A PF made slow on purpose (the default backend is the chain).
+            "filter.backend=\"pf\"".into(),
             format!("filter.pf.particles={PARTICLES}"),
             format!("filter.max_obs_age_us={max_age_us}"),
             "run.stats_period_s=0.1".into(),

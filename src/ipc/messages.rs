@@ -265,6 +265,9 @@ pub mod belief_status {
     pub const UPDATE_REFUSED: u32 = 1;
     /// The update resampled the particles.
     pub const RESAMPLED: u32 = 2;
+    /// Chain backend: the chain was stale and this belief is its Gaussian
+    /// fallback's (`stage::chain_guard`).
+    pub const CHAIN_FALLBACK: u32 = 4;
 }
 
 /// A Gaussian summary of the filter's belief (filter → control, refine).
@@ -496,7 +499,7 @@ pub mod stats_flags {
 
 /// Periodic (and final) statistics of a stage (stage → launcher).
 #[derive(Clone, Copy, Debug, PartialEq, ZeroCopySend)]
-#[type_name("beliefbus.StageStats.v2")]
+#[type_name("beliefbus.StageStats.v3")]
 #[repr(C)]
 pub struct StageStats {
     /// seq: report number; t_valid = t_pub: when the report was made.
@@ -564,6 +567,21 @@ pub struct StageStats {
     /// so these sum to `dropped`; refine and plant (skipped periods) leave
     /// them 0.
     pub dropped_by_reason: [u64; STATS_DROP_REASONS],
+    /// Filter (chain backend): the stale-chain fallback
+    /// (`stage::chain_guard`): steps published from the fallback, stale
+    /// episodes by cause (degenerate, age, evidence), chain beliefs
+    /// re-initialised from the fallback, largest version age at a step (ns).
+    pub chain_fallback_steps: u64,
+    pub chain_fallback_episodes: [u64; 3],
+    pub chain_fallback_reinits: u64,
+    pub chain_stale_max_ns: u64,
+    /// Filter: the fallback's predict + update time per observation (its
+    /// extra cost), p50 and p99, ns.
+    pub chain_fallback_p50_ns: u64,
+    pub chain_fallback_p99_ns: u64,
+    /// Filter: installs that left the fallback untethered (the chain was
+    /// doubtful).
+    pub chain_fallback_untethered: u64,
 }
 
 impl Default for StageStats {
@@ -599,6 +617,13 @@ impl Default for StageStats {
             chain_swap_p99_ns: 0,
             chain_mass_lost_max: 0.0,
             dropped_by_reason: [0; STATS_DROP_REASONS],
+            chain_fallback_steps: 0,
+            chain_fallback_episodes: [0; 3],
+            chain_fallback_reinits: 0,
+            chain_stale_max_ns: 0,
+            chain_fallback_p50_ns: 0,
+            chain_fallback_p99_ns: 0,
+            chain_fallback_untethered: 0,
         }
     }
 }

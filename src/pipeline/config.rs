@@ -250,6 +250,10 @@ pub struct ChainFilterConfig {
     /// (1/Σφ²) falls below this (0: never; see `LiveChainFilter::reanchor`).
     #[serde(default)]
     pub reanchor_ess: f64,
+    /// `[filter.chain.stale]`: the stale-chain fallback (see
+    /// `stage::chain_guard`).
+    #[serde(default)]
+    pub stale: crate::stage::chain_guard::StaleConfig,
 }
 
 fn default_prepare_budget() -> f64 {
@@ -261,6 +265,7 @@ impl Default for ChainFilterConfig {
         Self {
             prepare_budget_us: default_prepare_budget(),
             reanchor_ess: 0.0,
+            stale: Default::default(),
         }
     }
 }
@@ -890,6 +895,11 @@ impl PipelineConfig {
             "filter.chain.prepare_budget_us",
             self.filter.chain.prepare_budget_us,
         )?;
+        self.filter
+            .chain
+            .stale
+            .validate()
+            .map_err(|(k, e)| ConfigError::new(format!("filter.chain.stale.{k}"), e))?;
 
         let cores = crate::rt::sched::available_cores();
         for kind in StageKind::ALL {

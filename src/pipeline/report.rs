@@ -15,7 +15,10 @@
 //!   control:  {waypoints_reached, mean_distance_to_waypoint, controls_received,
 //!              controller, cost, compute_p50_us, compute_p99_us},
 //!   chain:    {versions, states, delta_s, swap_p50_us, swap_p99_us, mass_lost_max,
-//!              published, refine_states}   (filter backend `chain`; issue 4)
+//!              published, refine_states, fallback_steps, fallback_episodes,
+//!              fallback_by_cause: {degenerate, age, evidence}, fallback_reinits,
+//!              fallback_untethered,
+//!              fallback_cost_p50_us, fallback_cost_p99_us, stale_max_ms}   (filter backend `chain`; issue 4)
 //!   shared_memory: {files_removed, files_left} }
 //! ```
 //! Hops count only samples measured after `run.warmup_s`; a figure with no
@@ -235,8 +238,17 @@ impl ReportInput {
     }
 
     /// The `chain` section: what the filter installed (versions, size and δ
-    /// of the active chain, swap durations, largest mass lost in a remap)
-    /// and what refine published.
+    /// of the active chain, swap durations, largest mass lost in a remap),
+    /// what refine published, and the stale-chain fallback
+    /// (`stage::chain_guard`): beliefs published from the fallback
+    /// (`fallback_steps`), stale episodes (`fallback_episodes`, by the
+    /// cause that opened them), chain beliefs re-initialised from the
+    /// fallback when a version ended an episode (`fallback_reinits`),
+    /// installs that left the fallback apart from a doubtful chain
+    /// (`fallback_untethered`), the
+    /// fallback's predict + update time per observation — its extra cost —
+    /// (`fallback_cost_p50_us`/`p99_us`), and the oldest installed version
+    /// at a filter step (`stale_max_ms`; null before any install).
     fn chain_json(&self) -> Value {
         let f = self.stats(StageKind::Filter);
         let r = self.stats(StageKind::Refine);
@@ -255,6 +267,22 @@ impl ReportInput {
             "mass_lost_max": opt(f.filter(|_| swaps > 0).map(|s| s.chain_mass_lost_max)),
             "published": r.map(|s| s.chain_versions).unwrap_or(0),
             "refine_states": r.map(|s| s.chain_states).unwrap_or(0),
+            "fallback_steps": f.map(|s| s.chain_fallback_steps).unwrap_or(0),
+            "fallback_episodes": f.map(|s| s.chain_fallback_episodes.iter().sum::<u64>()).unwrap_or(0),
+            "fallback_by_cause": Value::Object(
+                crate::stage::chain_guard::Cause::ALL
+                    .iter()
+                    .map(|c| {
+                        let n = f.map(|s| s.chain_fallback_episodes[*c as usize]).unwrap_or(0);
+                        (c.name().to_string(), json!(n))
+                    })
+                    .collect::<Map<String, Value>>(),
+            ),
+            "fallback_reinits": f.map(|s| s.chain_fallback_reinits).unwrap_or(0),
+            "fallback_untethered": f.map(|s| s.chain_fallback_untethered).unwrap_or(0),
+            "fallback_cost_p50_us": opt(f.filter(|s| s.chain_fallback_p50_ns > 0).map(|s| us(s.chain_fallback_p50_ns))),
+            "fallback_cost_p99_us": opt(f.filter(|s| s.chain_fallback_p99_ns > 0).map(|s| us(s.chain_fallback_p99_ns))),
+            "stale_max_ms": opt(f.filter(|_| swaps > 0).map(|s| s.chain_stale_max_ns as f64 * 1e-6)),
         })
     }
 
@@ -373,6 +401,18 @@ impl ReportInput {
                 us(c.chain_swap_p50_ns),
                 us(c.chain_swap_p99_ns),
                 c.chain_mass_lost_max
+            ));
+            out.push_str(&format!(
+                "chain fallback: {} beliefs in {} stale episodes (degenerate {}, age {}, evidence {}), {} re-initialised from it; oldest version at a step {:.0} ms; its step p50 {:.1} µs p99 {:.1} µs\n",
+                c.chain_fallback_steps,
+                c.chain_fallback_episodes.iter().sum::<u64>(),
+                c.chain_fallback_episodes[0],
+                c.chain_fallback_episodes[1],
+                c.chain_fallback_episodes[2],
+                c.chain_fallback_reinits,
+                c.chain_stale_max_ns as f64 * 1e-6,
+                us(c.chain_fallback_p50_ns),
+                us(c.chain_fallback_p99_ns)
             ));
         }
         if let Some(p) = self.stats(StageKind::Plant) {
@@ -524,6 +564,10 @@ mod tests {
             "swap_p50_us",
             "swap_p99_us",
             "mass_lost_max",
+            "fallback_steps",
+            "fallback_episodes",
+            "fallback_reinits",
+            "stale_max_ms",
         ] {
             assert!(v["chain"].get(k).is_some(), "chain.{k}");
         }

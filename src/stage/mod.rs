@@ -11,6 +11,7 @@
 //! [`StageStats`] report published at start (so the launcher knows the stage
 //! is up), every `run.stats_period_s`, and once more on the way out.
 
+pub mod chain_guard;
 pub mod control;
 pub mod filter;
 pub mod ingest;
@@ -188,6 +189,10 @@ pub struct ChainMetrics {
     pub delta_s: f64,
     pub swap: LatencyHist,
     pub mass_lost_max: f64,
+    /// The stale-chain fallback's counts (filter).
+    pub guard: chain_guard::GuardCounts,
+    /// The fallback's predict + update time per observation (filter).
+    pub fallback_cost: LatencyHist,
 }
 
 impl Metrics {
@@ -294,6 +299,13 @@ impl Metrics {
             chain_swap_p50_ns: self.chain.swap.quantile(0.5),
             chain_swap_p99_ns: self.chain.swap.quantile(0.99),
             chain_mass_lost_max: self.chain.mass_lost_max,
+            chain_fallback_steps: self.chain.guard.fallback_steps,
+            chain_fallback_episodes: self.chain.guard.by_cause,
+            chain_fallback_reinits: self.chain.guard.reinits,
+            chain_stale_max_ns: self.chain.guard.stale_max_ns,
+            chain_fallback_p50_ns: self.chain.fallback_cost.quantile(0.5),
+            chain_fallback_p99_ns: self.chain.fallback_cost.quantile(0.99),
+            chain_fallback_untethered: self.chain.guard.untethered,
             dropped_by_reason: self.dropped_by_reason,
             ..StageStats::default()
         };
