@@ -9,12 +9,13 @@ use beliefbus::ipc::{
     belief_status, cleanup, Belief, Bus, BusConfig, Control, StageKind, StageStats,
 };
 use serde_json::Value;
-use std::io::BufRead;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
-use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
+
+mod launcher_support;
+use launcher_support::{pid_of, root, Run, PATIENCE};
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
@@ -40,10 +41,6 @@ impl Drop for Stages {
             let _ = c.wait();
         }
     }
-}
-
-fn root() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
 fn tmp(name: &str) -> PathBuf {
@@ -132,6 +129,26 @@ fn watch(
 ) -> (u64, u64) {
     let (nb, nc, _) = watch_flagged(beliefs, controls, stats, filter, d);
     (nb, nc)
+}
+
+/// Keep watching until the filter's stats report counts at least `steps`
+/// fallback steps: it reports once per run.stats_period_s, so the beliefs
+/// just counted show up in a later report.
+fn wait_fallback_counted(
+    beliefs: &beliefbus::ipc::Subscriber<Belief>,
+    controls: &beliefbus::ipc::Subscriber<Control>,
+    stats: &beliefbus::ipc::Subscriber<StageStats>,
+    filter: &mut Option<StageStats>,
+    steps: u64,
+) {
+    let t0 = Instant::now();
+    while filter.is_none_or(|f| f.chain_fallback_steps < steps) {
+        assert!(
+            t0.elapsed() < PATIENCE,
+            "fallback steps not counted: {steps} expected, report {filter:?}"
+        );
+        watch(beliefs, controls, stats, filter, Duration::from_millis(100));
+    }
 }
 
 /// [`watch`], also counting the beliefs that came from the stale-chain
@@ -230,24 +247,15 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
             &mut filter,
             Duration::from_secs(2),
         );
-        // The filter reports once per run.stats_period_s: wait for the
-        // report that covers the beliefs counted (the chain stays stale).
-        let t1 = Instant::now();
-        while filter
-            .is_none_or(|f: StageStats| f.chain_fallback_steps < before.chain_fallback_steps + nf)
-        {
-            assert!(
-                t1.elapsed() < Duration::from_secs(30),
-                "fallback steps not counted: {nf}"
-            );
-            watch(
-                &beliefs,
-                &controls,
-                &stats,
-                &mut filter,
-                Duration::from_millis(100),
-            );
-        }
+        // The filter reports once per run.stats_period_s (the chain stays
+        // stale meanwhile).
+        wait_fallback_counted(
+            &beliefs,
+            &controls,
+            &stats,
+            &mut filter,
+            before.chain_fallback_steps + nf,
+        );
         let after = filter.unwrap();
         // 100 Hz sensor: about 200 beliefs in two seconds; controls keep
         // flowing at (at least half) the rate they had before the kill.
@@ -277,110 +285,6 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
         "{:?}",
         cleanup::resources(&prefix)
     );
-}
-
-/// `beliefbus run` with its stderr read line by line; Ctrl-C'd when dropped
-/// (a failed assertion must not leave the pipeline running).
-struct Run {
-    child: Child,
-    lines: Receiver<String>,
-    log: Vec<String>,
-}
-
-impl Run {
-    fn start(args: &[&str]) -> Run {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_beliefbus"))
-            .args(args)
-            .current_dir(root())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let err = child.stderr.take().unwrap();
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            for l in std::io::BufReader::new(err).lines().map_while(Result::ok) {
-                if tx.send(l).is_err() {
-                    break;
-                }
-            }
-        });
-        Run {
-            child,
-            lines: rx,
-            log: Vec::new(),
-        }
-    }
-
-    /// Wait for a line containing `pat`; returns it.
-    fn expect(&mut self, pat: &str) -> String {
-        let deadline = Instant::now() + PATIENCE;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            match self.lines.recv_timeout(left) {
-                Ok(l) => {
-                    self.log.push(l.clone());
-                    if l.contains(pat) {
-                        return l;
-                    }
-                }
-                Err(RecvTimeoutError::Timeout) => {
-                    panic!("never saw '{pat}':\n{}", self.log.join("\n"))
-                }
-                Err(RecvTimeoutError::Disconnected) => {
-                    panic!("exited before '{pat}':\n{}", self.log.join("\n"))
-                }
-            }
-        }
-    }
-
-    fn prefix(&mut self) -> String {
-        let l = self.expect("bus: prefix=");
-        l.split_whitespace()
-            .find_map(|w| w.strip_prefix("prefix="))
-            .unwrap()
-            .to_string()
-    }
-
-    fn catch_up(&mut self) {
-        while let Ok(l) = self.lines.try_recv() {
-            self.log.push(l);
-        }
-    }
-
-    /// Ctrl-C, then the exit status (after the report is written).
-    fn interrupt(&mut self) -> std::process::ExitStatus {
-        // SAFETY: signalling our own child.
-        unsafe { libc::kill(self.child.id() as i32, libc::SIGINT) };
-        let st = self.child.wait().unwrap();
-        while let Ok(l) = self.lines.recv_timeout(Duration::from_secs(5)) {
-            self.log.push(l);
-        }
-        st
-    }
-}
-
-impl Drop for Run {
-    fn drop(&mut self) {
-        if matches!(self.child.try_wait(), Ok(None)) {
-            // SAFETY: as in `interrupt`.
-            unsafe { libc::kill(self.child.id() as i32, libc::SIGINT) };
-            let _ = self.child.wait();
-        }
-    }
-}
-
-/// Generous: the suite runs test binaries in parallel on two cores.
-const PATIENCE: Duration = Duration::from_secs(180);
-
-/// The pid in a line `... <stage> (pid N ...`.
-fn pid_of(line: &str) -> i32 {
-    let rest = line.split("(pid ").nth(1).unwrap();
-    rest.split(|c: char| !c.is_ascii_digit())
-        .next()
-        .unwrap()
-        .parse()
-        .unwrap()
 }
 
 /// The default scenario (moving-frame chain, closed loop) with refine
@@ -464,24 +368,13 @@ fn a_stopped_refine_hands_the_belief_to_the_fallback_and_the_estimate_holds() {
             &mut filter,
             Duration::from_secs(3),
         );
-        // The filter reports once per run.stats_period_s: wait for the
-        // report that covers the beliefs counted.
-        let t1 = Instant::now();
-        while filter
-            .is_none_or(|f: StageStats| f.chain_fallback_steps < before.chain_fallback_steps + nf)
-        {
-            assert!(
-                t1.elapsed() < PATIENCE,
-                "fallback steps not counted: {nf} seen"
-            );
-            watch(
-                &beliefs,
-                &controls,
-                &stats,
-                &mut filter,
-                Duration::from_millis(100),
-            );
-        }
+        wait_fallback_counted(
+            &beliefs,
+            &controls,
+            &stats,
+            &mut filter,
+            before.chain_fallback_steps + nf,
+        );
         let during = filter.unwrap();
         assert!(nb > 150, "beliefs with refine stopped: {nb}");
         assert!(

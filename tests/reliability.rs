@@ -10,132 +10,19 @@
 //! the generous waits below only keep a broken build from hanging CI.
 
 use serde_json::Value;
-use std::io::BufRead;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+mod launcher_support;
+use launcher_support::{pid_of, root, Run, PATIENCE};
+
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
-
-/// Liveness guard only (see the module doc).
-const PATIENCE: Duration = Duration::from_secs(180);
-
-fn root() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-}
 
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("beliefbus-rel-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir.join(name)
-}
-
-/// A launcher with its stderr streamed line by line.
-struct Run {
-    child: Child,
-    lines: Receiver<String>,
-    log: Vec<String>,
-}
-
-impl Run {
-    fn start(args: &[&str]) -> Run {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_beliefbus"))
-            .args(args)
-            .current_dir(root())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let err = child.stderr.take().unwrap();
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            for l in std::io::BufReader::new(err).lines().map_while(Result::ok) {
-                if tx.send(l).is_err() {
-                    break;
-                }
-            }
-        });
-        Run {
-            child,
-            lines: rx,
-            log: Vec::new(),
-        }
-    }
-
-    /// Wait for a line containing `pat`; returns it.
-    fn expect(&mut self, pat: &str) -> String {
-        let deadline = Instant::now() + PATIENCE;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            match self.lines.recv_timeout(left) {
-                Ok(l) => {
-                    self.log.push(l.clone());
-                    if l.contains(pat) {
-                        return l;
-                    }
-                }
-                Err(RecvTimeoutError::Timeout) => {
-                    panic!("never saw '{pat}':\n{}", self.log.join("\n"))
-                }
-                Err(RecvTimeoutError::Disconnected) => {
-                    panic!("launcher ended before '{pat}':\n{}", self.log.join("\n"))
-                }
-            }
-        }
-    }
-
-    fn prefix(&mut self) -> String {
-        let l = self.expect("bus: prefix=");
-        l.split_whitespace()
-            .find_map(|w| w.strip_prefix("prefix="))
-            .unwrap()
-            .to_string()
-    }
-
-    /// The pid in a line `... <stage> (pid N ...`.
-    fn pid_of(line: &str) -> i32 {
-        let rest = line.split("(pid ").nth(1).unwrap();
-        rest.split(|c: char| !c.is_ascii_digit())
-            .next()
-            .unwrap()
-            .parse()
-            .unwrap()
-    }
-
-    fn interrupt_and_wait(self) -> (std::process::ExitStatus, Vec<String>) {
-        // SAFETY: signalling our own child.
-        unsafe { libc::kill(self.child.id() as i32, libc::SIGINT) };
-        self.wait()
-    }
-
-    fn wait(mut self) -> (std::process::ExitStatus, Vec<String>) {
-        let status = self.child.wait().unwrap();
-        while let Ok(l) = self.lines.recv_timeout(Duration::from_secs(5)) {
-            self.log.push(l);
-        }
-        (status, std::mem::take(&mut self.log))
-    }
-
-    /// Take the lines that arrived so far into the log (no waiting).
-    fn catch_up(&mut self) {
-        while let Ok(l) = self.lines.try_recv() {
-            self.log.push(l);
-        }
-    }
-}
-
-/// A failed assertion must not leave the launcher (and its stages and
-/// shared memory) running: stop it as Ctrl-C would.
-impl Drop for Run {
-    fn drop(&mut self) {
-        if matches!(self.child.try_wait(), Ok(None)) {
-            // SAFETY: signalling our own child.
-            unsafe { libc::kill(self.child.id() as i32, libc::SIGINT) };
-            let _ = self.child.wait();
-        }
-    }
 }
 
 fn shm_files(prefix: &str) -> Vec<PathBuf> {
@@ -173,7 +60,7 @@ fn every_stage_killed_in_turn_and_a_hung_filter_recover_and_leave_nothing_behind
     let mut pids = std::collections::HashMap::new();
     for s in ["control", "refine", "filter", "ingest", "plant"] {
         let l = run.expect(&format!("supervisor: started {s} "));
-        pids.insert(s, Run::pid_of(&l));
+        pids.insert(s, pid_of(&l));
     }
     // Let the loop settle, then count the run's shared-memory files.
     std::thread::sleep(Duration::from_secs(2));
@@ -187,7 +74,7 @@ fn every_stage_killed_in_turn_and_a_hung_filter_recover_and_leave_nothing_behind
             pids[s]
         ));
         let l = run.expect(&format!("supervisor: restarted {s} "));
-        let new = Run::pid_of(&l);
+        let new = pid_of(&l);
         assert_ne!(new, pids[s]);
         pids.insert(s, new);
         run.expect(&format!("supervisor: recovered {s} "));
@@ -316,7 +203,7 @@ fn a_stage_whose_policy_forbids_restarts_ends_the_run_cleanly() {
     let prefix = run.prefix();
     let l = run.expect("supervisor: started control ");
     run.expect("supervisor: started plant ");
-    kill(Run::pid_of(&l), libc::SIGKILL);
+    kill(pid_of(&l), libc::SIGKILL);
     let (status, log) = run.wait();
     assert_eq!(status.code(), Some(1), "{}", log.join("\n"));
     assert!(
@@ -362,7 +249,7 @@ fn hundred_kill_restart_cycles_leave_the_shared_memory_file_count_unchanged() {
     let mut pids = std::collections::HashMap::new();
     for s in ["control", "refine", "filter", "ingest", "plant"] {
         let l = run.expect(&format!("supervisor: started {s} "));
-        pids.insert(s, Run::pid_of(&l));
+        pids.insert(s, pid_of(&l));
     }
     std::thread::sleep(Duration::from_secs(2));
     let before = shm_files(&prefix).len();
@@ -372,7 +259,7 @@ fn hundred_kill_restart_cycles_leave_the_shared_memory_file_count_unchanged() {
         let s = stages[i % stages.len()];
         kill(pids[s], libc::SIGKILL);
         let l = run.expect(&format!("supervisor: restarted {s} "));
-        pids.insert(s, Run::pid_of(&l));
+        pids.insert(s, pid_of(&l));
         let l = run.expect(&format!("supervisor: recovered {s} "));
         let ms: f64 = l
             .rsplit(" in ")
@@ -475,7 +362,7 @@ fn a_killed_refine_resumes_its_chain_and_the_filter_keeps_its_belief() {
         .iter()
         .rev()
         .find(|l| l.contains("started refine ") || l.contains("restarted refine "))
-        .map(|l| Run::pid_of(l))
+        .map(|l| pid_of(l))
         .unwrap();
     let t_kill = beliefbus::rt::clock::now_ns();
     kill(refine_pid, libc::SIGKILL);
