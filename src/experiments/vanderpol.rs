@@ -131,9 +131,18 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     // locality of the sparse filter step, [`crate::chain::order`]) or as
     // placed
     let state_order = p.choice(&mut rep, "state_order", "hilbert", &["hilbert", "placed"])?;
+    // (chosen) the prior N(m, diag(s)²) of every filter, which the true
+    // x(0) is drawn from too; the paper states neither
+    let prior_m = [
+        p.f64(&mut rep, "prior_x1", 0.5)?,
+        p.f64(&mut rep, "prior_x2", 0.0)?,
+    ];
+    let prior_s = [
+        p.f64(&mut rep, "prior_std1", 0.2)?,
+        p.f64(&mut rep, "prior_std2", 0.2)?,
+    ];
     p.finish()?;
     rep.param("mu", 2.0);
-    rep.param("prior", "N((0.5, 0), 0.2^2 I)");
     let model = VanDerPol::new(VanDerPolParams {
         e1: e,
         e2: e,
@@ -141,7 +150,11 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         ..VanDerPolParams::default()
     })
     .map_err(anyhow::Error::msg)?;
-    let prior = Gaussian::diagonal(&[0.5, 0.0], &[0.2, 0.2]);
+    if !(prior_s.iter().all(|v| v.is_finite() && *v > 0.0) && prior_m.iter().all(|v| v.is_finite()))
+    {
+        anyhow::bail!("vanderpol: prior_std1/2 must be > 0 and the prior mean finite");
+    }
+    let prior = Gaussian::diagonal(&prior_m, &prior_s);
     let steps = (t_end / dt).round() as usize;
     let mut sizes: Vec<usize> = chain_sizes.clone();
     if !sizes.contains(&n_chain) {
