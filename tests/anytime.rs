@@ -131,22 +131,20 @@ fn watch(
     (nb, nc)
 }
 
-/// Keep watching until the filter's stats report counts at least `steps`
-/// fallback steps: it reports once per run.stats_period_s, so the beliefs
-/// just counted show up in a later report.
-fn wait_fallback_counted(
+/// Keep watching until the filter's latest stats report satisfies `done`
+/// (it reports once per run.stats_period_s, so what was just counted shows
+/// up in a later report); `what` names the wait in the failure message.
+fn watch_until(
     beliefs: &beliefbus::ipc::Subscriber<Belief>,
     controls: &beliefbus::ipc::Subscriber<Control>,
     stats: &beliefbus::ipc::Subscriber<StageStats>,
     filter: &mut Option<StageStats>,
-    steps: u64,
+    what: &str,
+    done: impl Fn(&StageStats) -> bool,
 ) {
     let t0 = Instant::now();
-    while filter.is_none_or(|f| f.chain_fallback_steps < steps) {
-        assert!(
-            t0.elapsed() < PATIENCE,
-            "fallback steps not counted: {steps} expected, report {filter:?}"
-        );
+    while !filter.as_ref().is_some_and(&done) {
+        assert!(t0.elapsed() < PATIENCE, "{what}: last report {filter:?}");
         watch(beliefs, controls, stats, filter, Duration::from_millis(100));
     }
 }
@@ -206,17 +204,14 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
         children.0.push(("plant", spawn("plant", &prefix)));
         // Until the filter runs on the live chain.
         let mut filter = None;
-        let t0 = Instant::now();
-        while filter.is_none_or(|f: StageStats| f.chain_versions < 3) {
-            assert!(t0.elapsed() < Duration::from_secs(30), "no chain installed");
-            watch(
-                &beliefs,
-                &controls,
-                &stats,
-                &mut filter,
-                Duration::from_millis(100),
-            );
-        }
+        watch_until(
+            &beliefs,
+            &controls,
+            &stats,
+            &mut filter,
+            "no chain installed",
+            |f| f.chain_versions >= 3,
+        );
         // The same two-second count with refine alive: the reference the
         // counts after the kill are held to (the controller's rate depends
         // on the machine and the build, not on refine).
@@ -249,12 +244,13 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
         );
         // The filter reports once per run.stats_period_s (the chain stays
         // stale meanwhile).
-        wait_fallback_counted(
+        watch_until(
             &beliefs,
             &controls,
             &stats,
             &mut filter,
-            before.chain_fallback_steps + nf,
+            "fallback steps not counted",
+            |f| f.chain_fallback_steps >= before.chain_fallback_steps + nf,
         );
         let after = filter.unwrap();
         // 100 Hz sensor: about 200 beliefs in two seconds; controls keep
@@ -323,17 +319,14 @@ fn a_stopped_refine_hands_the_belief_to_the_fallback_and_the_estimate_holds() {
         let controls = bus.subscriber_with::<Control>(256, false).unwrap();
         let stats = bus.subscriber_with::<StageStats>(64, false).unwrap();
         let mut filter = None;
-        let t0 = Instant::now();
-        while filter.is_none_or(|f: StageStats| f.chain_versions < 3) {
-            assert!(t0.elapsed() < PATIENCE, "no chain installed");
-            watch(
-                &beliefs,
-                &controls,
-                &stats,
-                &mut filter,
-                Duration::from_millis(100),
-            );
-        }
+        watch_until(
+            &beliefs,
+            &controls,
+            &stats,
+            &mut filter,
+            "no chain installed",
+            |f| f.chain_versions >= 3,
+        );
         let (_, nc0) = watch(
             &beliefs,
             &controls,
@@ -368,12 +361,13 @@ fn a_stopped_refine_hands_the_belief_to_the_fallback_and_the_estimate_holds() {
             &mut filter,
             Duration::from_secs(3),
         );
-        wait_fallback_counted(
+        watch_until(
             &beliefs,
             &controls,
             &stats,
             &mut filter,
-            before.chain_fallback_steps + nf,
+            "fallback steps not counted",
+            |f| f.chain_fallback_steps >= before.chain_fallback_steps + nf,
         );
         let during = filter.unwrap();
         assert!(nb > 150, "beliefs with refine stopped: {nb}");
