@@ -55,7 +55,8 @@
 use anyhow::Result;
 
 use super::chain_util::{
-    compare_filters, draw_from, mean_se, predictive_points, result_row, simulate, Params, RunResult,
+    compare_filters, draw_from, mean_se, paired_difference, predictive_points, result_row,
+    simulate, Params,
 };
 use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::belief::Gaussian;
@@ -212,19 +213,6 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     Ok(rep)
 }
 
-/// Mean and 95 % half-width (1.96 standard errors) of the per-run error
-/// differences a − b over the runs where neither diverged, and that count.
-pub fn paired_difference(a: &[RunResult], b: &[RunResult]) -> (f64, f64, usize) {
-    let d: Vec<f64> = a
-        .iter()
-        .zip(b)
-        .filter(|(x, y)| !x.diverged && !y.diverged)
-        .map(|(x, y)| x.mean_error - y.mean_error)
-        .collect();
-    let (m, se) = mean_se(&d);
-    (m, 1.96 * se, d.len())
-}
-
 #[cfg(test)]
 mod tests {
     use super::kalman_bucy_floor;
@@ -267,22 +255,5 @@ mod tests {
             "floor² / 2 {} vs Kalman tr P {tr}",
             floor * floor / 2.0
         );
-    }
-
-    #[test]
-    fn paired_difference_skips_diverged_runs() {
-        use super::{paired_difference, RunResult};
-        let r = |e: f64, div: bool| RunResult {
-            mean_error: e,
-            diverged: div,
-            ..RunResult::default()
-        };
-        let a = [r(1.0, false), r(2.0, false), r(9.0, true), r(4.0, false)];
-        let b = [r(0.5, false), r(1.0, false), r(0.0, false), r(1.5, false)];
-        // differences 0.5, 1.0, 2.5: mean 4/3, sample variance 13/12
-        let (m, ci, k) = paired_difference(&a, &b);
-        assert_eq!(k, 3);
-        assert!((m - 4.0 / 3.0).abs() < 1e-12);
-        assert!((ci - 1.96 * (13.0f64 / 12.0 / 3.0).sqrt()).abs() < 1e-12);
     }
 }
