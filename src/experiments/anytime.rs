@@ -12,26 +12,25 @@
 //! `refine.period_ms` of simulated time, refine works `refine.work_ms` of
 //! wall-clock time ([`Refiner::work`]); every `refine.publish_period_ms` it
 //! writes a snapshot, which the filter prepares after its updates within
-//! `filter.chain.prepare_budget_us` ([`LiveChainFilter::advance`]) and swaps
+//! `filter.chain.prepare_budget_us` ([`crate::filter::live_chain::LiveChainFilter::advance`]) and swaps
 //! in — the same code as the `refine` and `filter` stage loops, without
 //! shared memory, so that the error per second does not depend on how the
 //! machine schedules the processes. (Deviation from the issue's "through the
 //! stage loops": the multi-process run is `beliefbus run`; this experiment
 //! isolates the anytime behaviour.)
 
-use super::chain_util::{predictive_points, split_config_param, Params};
+use super::chain_util::{live_chain_filter, predictive_points, split_config_param, Params};
 use super::{ExperimentArgs, ExperimentReport, Row};
 use crate::belief::Gaussian;
 use crate::chain::snapshot::words_needed;
 use crate::chain::Chain;
 use crate::filter::chain_filter::ChainFilter;
-use crate::filter::live_chain::LiveChainFilter;
 use crate::filter::pf::Pf;
 use crate::filter::BayesFilter;
 use crate::model::discrete::{em_integrate, simulate_observation};
 use crate::model::{Measurement, SdeModel};
 use crate::pipeline::config;
-use crate::stage::filter::{make_filter, prior};
+use crate::stage::filter::prior;
 use crate::stage::refine::{chain_config, Refiner};
 use anyhow::Result;
 use std::time::Duration;
@@ -95,13 +94,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
 
     // Live: refine and filter interleaved in simulated time.
     let mut refiner = Refiner::new(&cfg, 1)?;
-    let mut live: LiveChainFilter<_, Vec<u64>> = LiveChainFilter::new(
-        model.clone(),
-        make_filter(&cfg, 0.0)?,
-        cfg.refine.max_states,
-        &prior,
-        0.0,
-    );
+    let mut live = live_chain_filter(model.clone(), &cfg, &prior)?;
     let period = (cfg.refine.period_ms * 1e-3 / dt).round().max(1.0) as usize;
     let publish = (cfg.refine.publish_period_ms * 1e-3 / dt).round().max(1.0) as usize;
     let work = Duration::from_secs_f64(cfg.refine.work_ms * 1e-3);

@@ -9,7 +9,7 @@
 //! same record. Rows: RMS position / velocity error per filter, re-spreads
 //! and versions of the live chain.
 
-use super::chain_util::{split_config_param, Params};
+use super::chain_util::{live_chain_filter, split_config_param, Params};
 use super::refine_sim::SimRefine;
 use super::{ExperimentArgs, ExperimentReport, Row};
 use crate::belief::Gaussian;
@@ -18,7 +18,6 @@ use crate::control::mppi::Mppi;
 use crate::control::waypoints::WaypointTracker;
 use crate::control::Controller;
 use crate::filter::chain_filter::ChainFilter;
-use crate::filter::live_chain::LiveChainFilter;
 use crate::filter::pf::Pf;
 use crate::filter::BayesFilter;
 use crate::model::discrete::{em_integrate, simulate_observation};
@@ -26,7 +25,7 @@ use crate::model::{Measurement, SdeModel};
 use crate::pipeline::config::ControlBackend;
 use crate::pipeline::{config, PipelineConfig};
 use crate::stage::control::implicit_controller;
-use crate::stage::filter::{make_filter, prior};
+use crate::stage::filter::prior;
 use crate::stage::refine::chain_config;
 use crate::MAX_STATE;
 use anyhow::Result;
@@ -120,13 +119,7 @@ pub fn closed_loop(
 
     // Live chain: refine and filter interleaved in simulated time.
     let mut refine = SimRefine::new(&cfg, dt, dims.state, work)?;
-    let mut live: LiveChainFilter<_, Vec<u64>> = LiveChainFilter::new(
-        model.clone(),
-        make_filter(&cfg, 0.0)?,
-        cfg.refine.max_states,
-        &prior,
-        0.0,
-    );
+    let mut live = live_chain_filter(model.clone(), &cfg, &prior)?;
     live.set_reanchor(cfg.filter.chain.reanchor_ess);
     live.set_moving_frame(cfg.refine.moving_frame);
     let prepare = Duration::from_secs_f64(cfg.filter.chain.prepare_budget_us * 1e-6);
@@ -402,13 +395,7 @@ pub fn closed_loop_controller(
     // The chain filter's loop: refine and filter interleaved in simulated
     // time, as in `closed_loop`.
     let mut refine = SimRefine::new(&cfg, dt, dims.state, work)?;
-    let mut live: LiveChainFilter<_, Vec<u64>> = LiveChainFilter::new(
-        model.clone(),
-        make_filter(&cfg, 0.0)?,
-        cfg.refine.max_states,
-        &prior,
-        0.0,
-    );
+    let mut live = live_chain_filter(model.clone(), &cfg, &prior)?;
     let prepare = Duration::from_secs_f64(cfg.filter.chain.prepare_budget_us * 1e-6);
     live.set_tuning(tuning.0, tuning.1);
     live.set_reanchor(cfg.filter.chain.reanchor_ess);
@@ -546,13 +533,7 @@ pub fn closed_loop_controller(
         out.speed_max_pf = smax;
         // The live chain (with refine) on the PF loop's record.
         let mut refine = SimRefine::new(&cfg, dt, dims.state, work)?;
-        let mut live: LiveChainFilter<_, Vec<u64>> = LiveChainFilter::new(
-            model.clone(),
-            make_filter(&cfg, 0.0)?,
-            cfg.refine.max_states,
-            &prior,
-            0.0,
-        );
+        let mut live = live_chain_filter(model.clone(), &cfg, &prior)?;
         live.set_tuning(tuning.0, tuning.1);
         live.set_reanchor(cfg.filter.chain.reanchor_ess);
         live.set_moving_frame(cfg.refine.moving_frame);

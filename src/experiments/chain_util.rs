@@ -260,6 +260,24 @@ pub fn run_filter_every(
     }
 }
 
+/// The live chain filter of a pipeline config, as the filter stage builds
+/// it: the config's filter backend answers (from `prior` at t = 0) until
+/// the first chain version is installed, with buffers for
+/// `refine.max_states` states. Callers set reanchoring, frame and tuning.
+pub fn live_chain_filter<M: SdeModel>(
+    model: M,
+    cfg: &crate::pipeline::PipelineConfig,
+    prior: &Gaussian,
+) -> Result<crate::filter::live_chain::LiveChainFilter<M, Vec<u64>>> {
+    Ok(crate::filter::live_chain::LiveChainFilter::new(
+        model,
+        crate::stage::filter::make_filter(cfg, 0.0)?,
+        cfg.refine.max_states,
+        prior,
+        0.0,
+    ))
+}
+
 /// Mean and 95 % half-width (1.96 standard errors) of the per-run error
 /// differences a − b over the runs where neither diverged, and that count.
 pub fn paired_difference(a: &[RunResult], b: &[RunResult]) -> (f64, f64, usize) {
