@@ -6,7 +6,7 @@
 //! Pipelines are run one at a time (they pin themselves to the same cores).
 
 use beliefbus::ipc::{
-    belief_status, cleanup, Belief, Bus, BusConfig, Control, StageKind, StageStats,
+    belief_status, cleanup, Belief, Bus, BusConfig, Control, StageKind, StageStats, Subscriber,
 };
 use serde_json::Value;
 use std::path::PathBuf;
@@ -119,65 +119,83 @@ fn spawn(kind: &str, prefix: &str) -> Child {
         .unwrap()
 }
 
-/// Beliefs and controls received, and the filter's latest stats, over `d`.
-fn watch(
-    beliefs: &beliefbus::ipc::Subscriber<Belief>,
-    controls: &beliefbus::ipc::Subscriber<Control>,
-    stats: &beliefbus::ipc::Subscriber<StageStats>,
-    filter: &mut Option<StageStats>,
-    d: Duration,
-) -> (u64, u64) {
-    let (nb, nc, _) = watch_flagged(beliefs, controls, stats, filter, d);
-    (nb, nc)
+/// A test's view of a run's bus: the beliefs and controls it counts and
+/// the filter's latest stats report.
+struct Watcher {
+    beliefs: Subscriber<Belief>,
+    controls: Subscriber<Control>,
+    stats: Subscriber<StageStats>,
+    /// The filter's latest stats report, if one came.
+    filter: Option<StageStats>,
+    _bus: Bus,
 }
 
-/// Keep watching until the filter's latest stats report satisfies `done`
-/// (it reports once per run.stats_period_s, so what was just counted shows
-/// up in a later report); `what` names the wait in the failure message.
-fn watch_until(
-    beliefs: &beliefbus::ipc::Subscriber<Belief>,
-    controls: &beliefbus::ipc::Subscriber<Control>,
-    stats: &beliefbus::ipc::Subscriber<StageStats>,
-    filter: &mut Option<StageStats>,
-    what: &str,
-    done: impl Fn(&StageStats) -> bool,
-) {
-    let t0 = Instant::now();
-    while !filter.as_ref().is_some_and(&done) {
-        assert!(t0.elapsed() < PATIENCE, "{what}: last report {filter:?}");
-        watch(beliefs, controls, stats, filter, Duration::from_millis(100));
+impl Watcher {
+    /// Subscribe as node `name` to the run under `prefix`.
+    fn open(prefix: &str, name: &str) -> Self {
+        let bus = Bus::open(
+            &BusConfig {
+                prefix: prefix.to_string(),
+                instance: "ship".into(),
+            },
+            name,
+        )
+        .unwrap();
+        Self {
+            beliefs: bus.subscriber_with::<Belief>(256, false).unwrap(),
+            controls: bus.subscriber_with::<Control>(256, false).unwrap(),
+            stats: bus.subscriber_with::<StageStats>(64, false).unwrap(),
+            filter: None,
+            _bus: bus,
+        }
     }
-}
 
-/// [`watch`], also counting the beliefs that came from the stale-chain
-/// fallback (flagged `CHAIN_FALLBACK`).
-fn watch_flagged(
-    beliefs: &beliefbus::ipc::Subscriber<Belief>,
-    controls: &beliefbus::ipc::Subscriber<Control>,
-    stats: &beliefbus::ipc::Subscriber<StageStats>,
-    filter: &mut Option<StageStats>,
-    d: Duration,
-) -> (u64, u64, u64) {
-    let (mut nb, mut nc, mut nf) = (0, 0, 0);
-    let end = Instant::now() + d;
-    while Instant::now() < end {
-        while let Some(b) = beliefs.receive().unwrap() {
-            nb += 1;
-            if b.status & belief_status::CHAIN_FALLBACK != 0 {
-                nf += 1;
-            }
-        }
-        while controls.receive().unwrap().is_some() {
-            nc += 1;
-        }
-        while let Some(s) = stats.receive().unwrap() {
-            if s.stage == StageKind::Filter as u32 {
-                *filter = Some(s);
-            }
-        }
-        std::thread::sleep(Duration::from_millis(5));
+    /// Beliefs and controls received over `d`.
+    fn count(&mut self, d: Duration) -> (u64, u64) {
+        let (nb, nc, _) = self.count_flagged(d);
+        (nb, nc)
     }
-    (nb, nc, nf)
+
+    /// Keep watching until the filter's latest stats report satisfies
+    /// `done` (it reports once per run.stats_period_s, so what was just
+    /// counted shows up in a later report); `what` names the wait in the
+    /// failure message.
+    fn until(&mut self, what: &str, done: impl Fn(&StageStats) -> bool) {
+        let t0 = Instant::now();
+        while !self.filter.as_ref().is_some_and(&done) {
+            assert!(
+                t0.elapsed() < PATIENCE,
+                "{what}: last report {:?}",
+                self.filter
+            );
+            self.count(Duration::from_millis(100));
+        }
+    }
+
+    /// [`Self::count`], also counting the beliefs that came from the
+    /// stale-chain fallback (flagged `CHAIN_FALLBACK`).
+    fn count_flagged(&mut self, d: Duration) -> (u64, u64, u64) {
+        let (mut nb, mut nc, mut nf) = (0, 0, 0);
+        let end = Instant::now() + d;
+        while Instant::now() < end {
+            while let Some(b) = self.beliefs.receive().unwrap() {
+                nb += 1;
+                if b.status & belief_status::CHAIN_FALLBACK != 0 {
+                    nf += 1;
+                }
+            }
+            while self.controls.receive().unwrap().is_some() {
+                nc += 1;
+            }
+            while let Some(s) = self.stats.receive().unwrap() {
+                if s.stage == StageKind::Filter as u32 {
+                    self.filter = Some(s);
+                }
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        (nb, nc, nf)
+    }
 }
 
 #[test]
@@ -185,15 +203,8 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let prefix = cleanup::run_prefix();
     let _teardown = Teardown(prefix.clone());
-    let bus_cfg = BusConfig {
-        prefix: prefix.clone(),
-        instance: "ship".into(),
-    };
     {
-        let bus = Bus::open(&bus_cfg, "test").unwrap();
-        let beliefs = bus.subscriber_with::<Belief>(256, false).unwrap();
-        let controls = bus.subscriber_with::<Control>(256, false).unwrap();
-        let stats = bus.subscriber_with::<StageStats>(64, false).unwrap();
+        let mut w = Watcher::open(&prefix, "test");
         let mut children = Stages(
             ["control", "refine", "filter", "ingest"]
                 .into_iter()
@@ -203,56 +214,25 @@ fn killing_refine_mid_run_does_not_stop_beliefs_or_controls() {
         std::thread::sleep(Duration::from_millis(500));
         children.0.push(("plant", spawn("plant", &prefix)));
         // Until the filter runs on the live chain.
-        let mut filter = None;
-        watch_until(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            "no chain installed",
-            |f| f.chain_versions >= 3,
-        );
+        w.until("no chain installed", |f| f.chain_versions >= 3);
         // The same two-second count with refine alive: the reference the
         // counts after the kill are held to (the controller's rate depends
         // on the machine and the build, not on refine).
-        let (nb0, nc0) = watch(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            Duration::from_secs(2),
-        );
-        let before = filter.unwrap();
+        let (nb0, nc0) = w.count(Duration::from_secs(2));
+        let before = w.filter.unwrap();
         let refine = children.0.iter_mut().find(|(k, _)| *k == "refine").unwrap();
         refine.1.kill().unwrap(); // SIGKILL
         refine.1.wait().unwrap();
         // Let the dead publisher go and its last version go stale
         // (filter.chain.stale.max_age_ms, 1 s), then count for two seconds.
-        watch(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            Duration::from_millis(1200),
-        );
-        let (nb, nc, nf) = watch_flagged(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            Duration::from_secs(2),
-        );
+        w.count(Duration::from_millis(1200));
+        let (nb, nc, nf) = w.count_flagged(Duration::from_secs(2));
         // The filter reports once per run.stats_period_s (the chain stays
         // stale meanwhile).
-        watch_until(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            "fallback steps not counted",
-            |f| f.chain_fallback_steps >= before.chain_fallback_steps + nf,
-        );
-        let after = filter.unwrap();
+        w.until("fallback steps not counted", |f| {
+            f.chain_fallback_steps >= before.chain_fallback_steps + nf
+        });
+        let after = w.filter.unwrap();
         // 100 Hz sensor: about 200 beliefs in two seconds; controls keep
         // flowing at (at least half) the rate they had before the kill.
         assert!(nb > 100, "beliefs after the kill: {nb} (before: {nb0})");
@@ -307,34 +287,10 @@ fn a_stopped_refine_hands_the_belief_to_the_fallback_and_the_estimate_holds() {
     run.expect("supervisor: started plant ");
     let stopped;
     {
-        let bus = Bus::open(
-            &BusConfig {
-                prefix: prefix.clone(),
-                instance: "ship".into(),
-            },
-            "watcher",
-        )
-        .unwrap();
-        let beliefs = bus.subscriber_with::<Belief>(256, false).unwrap();
-        let controls = bus.subscriber_with::<Control>(256, false).unwrap();
-        let stats = bus.subscriber_with::<StageStats>(64, false).unwrap();
-        let mut filter = None;
-        watch_until(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            "no chain installed",
-            |f| f.chain_versions >= 3,
-        );
-        let (_, nc0) = watch(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            Duration::from_secs(2),
-        );
-        let before = filter.unwrap();
+        let mut w = Watcher::open(&prefix, "watcher");
+        w.until("no chain installed", |f| f.chain_versions >= 3);
+        let (_, nc0) = w.count(Duration::from_secs(2));
+        let before = w.filter.unwrap();
         run.catch_up();
         stopped = run
             .log
@@ -347,29 +303,12 @@ fn a_stopped_refine_hands_the_belief_to_the_fallback_and_the_estimate_holds() {
         assert_eq!(unsafe { libc::kill(stopped, libc::SIGSTOP) }, 0);
         // The last version goes stale after filter.chain.stale.max_age_ms
         // (1 s); count the three seconds after that.
-        watch(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            Duration::from_millis(1200),
-        );
-        let (nb, nc, nf) = watch_flagged(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            Duration::from_secs(3),
-        );
-        watch_until(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            "fallback steps not counted",
-            |f| f.chain_fallback_steps >= before.chain_fallback_steps + nf,
-        );
-        let during = filter.unwrap();
+        w.count(Duration::from_millis(1200));
+        let (nb, nc, nf) = w.count_flagged(Duration::from_secs(3));
+        w.until("fallback steps not counted", |f| {
+            f.chain_fallback_steps >= before.chain_fallback_steps + nf
+        });
+        let during = w.filter.unwrap();
         assert!(nb > 150, "beliefs with refine stopped: {nb}");
         assert!(
             nf * 10 >= nb * 9,
@@ -385,30 +324,11 @@ fn a_stopped_refine_hands_the_belief_to_the_fallback_and_the_estimate_holds() {
         // re-initialises the chain from the fallback's belief.
         // SAFETY: as above; a dead pid only fails.
         unsafe { libc::kill(stopped, libc::SIGCONT) };
-        let t1 = Instant::now();
-        while filter
-            .is_none_or(|f: StageStats| f.chain_fallback_reinits <= during.chain_fallback_reinits)
-        {
-            assert!(
-                t1.elapsed() < PATIENCE,
-                "no re-initialisation after refine came back"
-            );
-            watch(
-                &beliefs,
-                &controls,
-                &stats,
-                &mut filter,
-                Duration::from_millis(100),
-            );
-        }
+        w.until("no re-initialisation after refine came back", |f| {
+            f.chain_fallback_reinits > during.chain_fallback_reinits
+        });
         // A few seconds more on the chain before the end.
-        watch(
-            &beliefs,
-            &controls,
-            &stats,
-            &mut filter,
-            Duration::from_secs(3),
-        );
+        w.count(Duration::from_secs(3));
     }
     let st = run.interrupt();
     assert!(st.success(), "{st:?}:\n{}", run.log.join("\n"));

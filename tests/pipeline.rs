@@ -9,14 +9,13 @@ use std::process::{Command, Output, Stdio};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+mod launcher_support;
+use launcher_support::{root, Run};
+
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 fn exe() -> &'static str {
     env!("CARGO_BIN_EXE_beliefbus")
-}
-
-fn root() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
 fn tmp(name: &str) -> PathBuf {
@@ -336,45 +335,13 @@ fn a_crashed_stage_leaves_nothing_after_cleanup() {
 #[test]
 fn after_the_launcher_is_killed_its_stages_stop_and_a_sweep_removes_the_run() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let mut child = Command::new(exe())
-        .args(["run", "--duration", "0"])
-        .current_dir(root())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let err = child.stderr.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        use std::io::BufRead;
-        for line in std::io::BufReader::new(err).lines().map_while(Result::ok) {
-            let _ = tx.send(line);
-        }
-    });
-    // A line names the prefix (a note about swept earlier crashed runs may
-    // come first); then wait for a status line (all up).
-    let first = loop {
-        let l = rx.recv_timeout(Duration::from_secs(30)).unwrap();
-        if l.contains("prefix") {
-            break l;
-        }
-    };
-    // "bus: prefix=<prefix> instance=… sensor=…" (or the prefix last).
-    let prefix = first
-        .split_whitespace()
-        .find_map(|w| w.strip_prefix("prefix="))
-        .or_else(|| first.rsplit(' ').next())
-        .unwrap()
-        .to_string();
-    assert!(prefix.starts_with("iox2_bb-"), "{first}");
-    loop {
-        let l = rx.recv_timeout(Duration::from_secs(30)).unwrap();
-        if l.contains("sensor->control p50") {
-            break;
-        }
-    }
-    child.kill().unwrap(); // SIGKILL: no cleanup by the launcher
-    child.wait().unwrap();
+    let mut run = Run::start(&["run", "--duration", "0"]);
+    let prefix = run.prefix();
+    assert!(prefix.starts_with("iox2_bb-"), "{prefix}");
+    // A status line: all up.
+    run.expect("sensor->control p50");
+    run.child.kill().unwrap(); // SIGKILL: no cleanup by the launcher
+    run.child.wait().unwrap();
     // The stages get SIGTERM (parent-death signal), stop and drop their nodes.
     let deadline = Instant::now() + Duration::from_secs(30);
     loop {
