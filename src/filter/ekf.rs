@@ -146,44 +146,13 @@ impl<M: SdeJacobians> BayesFilter for Ekf<M> {
             return Ok(());
         }
         let d = self.dims.state;
-        let dd = d * d;
         let steps = (dur / self.cfg.max_dt).ceil().max(1.0);
         let h = dur / steps;
         let mut m = self.mean;
         let mut p = self.cov;
-        // RK4 stages (k1..k4 for m and P) and the stage point.
-        let mut km = [[0.0; MAX_STATE]; 4];
-        let mut kp = [[0.0; MAX_STATE * MAX_STATE]; 4];
-        let mut ms = [0.0; MAX_STATE];
-        let mut ps: Mat = [0.0; MAX_STATE * MAX_STATE];
-        for _ in 0..steps as usize {
-            for s in 0..4 {
-                let c = match s {
-                    0 => 0.0,
-                    3 => h,
-                    _ => 0.5 * h,
-                };
-                if s == 0 {
-                    ms[..d].copy_from_slice(&m[..d]);
-                    ps[..dd].copy_from_slice(&p[..dd]);
-                } else {
-                    for i in 0..d {
-                        ms[i] = m[i] + c * km[s - 1][i];
-                    }
-                    for i in 0..dd {
-                        ps[i] = p[i] + c * kp[s - 1][i];
-                    }
-                }
-                let (dm, dp) = (&mut km[s], &mut kp[s]);
-                self.moments_rhs(&ms[..d], &ps[..dd], u, &mut dm[..d], &mut dp[..dd]);
-            }
-            for i in 0..d {
-                m[i] += h / 6.0 * (km[0][i] + 2.0 * km[1][i] + 2.0 * km[2][i] + km[3][i]);
-            }
-            for i in 0..dd {
-                p[i] += h / 6.0 * (kp[0][i] + 2.0 * kp[1][i] + 2.0 * kp[2][i] + kp[3][i]);
-            }
-        }
+        gauss::rk4_moments(d, &mut m, &mut p, h, steps as usize, |ms, ps, dm, dp| {
+            self.moments_rhs(ms, ps, u, dm, dp)
+        });
         if gauss::asymmetry(&p, d) > 1e-6 {
             return Err(FilterError::Numerical("predicted covariance lost symmetry"));
         }

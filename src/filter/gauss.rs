@@ -316,6 +316,54 @@ pub(crate) fn masked_joseph_update(
     Ok(log_ev)
 }
 
+/// Classical RK4 on the moment equations ṁ = f(m), Ṗ = A P + P Aᵀ + F Fᵀ
+/// (the EKF's continuous-time prediction): `steps` equal steps of `h`
+/// from (`mean`, `cov`) (d and d × d column-major), with
+/// `rhs(m, P, ṁ, Ṗ)` evaluating the right-hand side. No allocation.
+pub fn rk4_moments(
+    d: usize,
+    mean: &mut [f64],
+    cov: &mut [f64],
+    h: f64,
+    steps: usize,
+    mut rhs: impl FnMut(&[f64], &[f64], &mut [f64], &mut [f64]),
+) {
+    let dd = d * d;
+    // RK4 stages (k1..k4 for m and P) and the stage point.
+    let mut km = [[0.0; MAX_STATE]; 4];
+    let mut kp = [[0.0; MAX_STATE * MAX_STATE]; 4];
+    let mut ms = [0.0; MAX_STATE];
+    let mut ps = [0.0; MAX_STATE * MAX_STATE];
+    for _ in 0..steps {
+        for s in 0..4 {
+            let c = match s {
+                0 => 0.0,
+                3 => h,
+                _ => 0.5 * h,
+            };
+            if s == 0 {
+                ms[..d].copy_from_slice(&mean[..d]);
+                ps[..dd].copy_from_slice(&cov[..dd]);
+            } else {
+                for i in 0..d {
+                    ms[i] = mean[i] + c * km[s - 1][i];
+                }
+                for i in 0..dd {
+                    ps[i] = cov[i] + c * kp[s - 1][i];
+                }
+            }
+            let (dm, dp) = (&mut km[s], &mut kp[s]);
+            rhs(&ms[..d], &ps[..dd], &mut dm[..d], &mut dp[..dd]);
+        }
+        for i in 0..d {
+            mean[i] += h / 6.0 * (km[0][i] + 2.0 * km[1][i] + 2.0 * km[2][i] + km[3][i]);
+        }
+        for i in 0..dd {
+            cov[i] += h / 6.0 * (kp[0][i] + 2.0 * kp[1][i] + 2.0 * kp[2][i] + kp[3][i]);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

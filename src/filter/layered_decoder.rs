@@ -217,8 +217,8 @@ pub fn propagate_gaussian<M: SdeModel + ?Sized>(
     let k = model.dims().noise;
     let c = model.dims().control;
     let u = [0.0; crate::MAX_CONTROL];
-    let mut big_f = [0.0; MAX_STATE * MAX_NOISE];
-    let rhs = |m: &[f64], p: &[f64], dm: &mut [f64], dp: &mut [f64], big_f: &mut [f64]| {
+    let rhs = |m: &[f64], p: &[f64], dm: &mut [f64], dp: &mut [f64]| {
+        let mut big_f = [0.0; MAX_STATE * MAX_NOISE];
         model.drift(m, &u[..c], dm);
         // J by central differences
         let mut jac = [0.0; MAX_STATE * MAX_STATE];
@@ -253,72 +253,7 @@ pub fn propagate_gaussian<M: SdeModel + ?Sized>(
     mean[..d].copy_from_slice(x);
     cov[..d * d].fill(0.0);
     let h = tau / substeps.max(1) as f64;
-    let (mut k1m, mut k2m, mut k3m, mut k4m) = (
-        [0.0; MAX_STATE],
-        [0.0; MAX_STATE],
-        [0.0; MAX_STATE],
-        [0.0; MAX_STATE],
-    );
-    let mut k1p = [0.0; MAX_STATE * MAX_STATE];
-    let mut k2p = k1p;
-    let mut k3p = k1p;
-    let mut k4p = k1p;
-    let mut tm = [0.0; MAX_STATE];
-    let mut tp = [0.0; MAX_STATE * MAX_STATE];
-    for _ in 0..substeps.max(1) {
-        rhs(
-            &mean[..d],
-            &cov[..d * d],
-            &mut k1m[..d],
-            &mut k1p[..d * d],
-            &mut big_f,
-        );
-        for i in 0..d {
-            tm[i] = mean[i] + 0.5 * h * k1m[i];
-        }
-        for i in 0..d * d {
-            tp[i] = cov[i] + 0.5 * h * k1p[i];
-        }
-        rhs(
-            &tm[..d],
-            &tp[..d * d],
-            &mut k2m[..d],
-            &mut k2p[..d * d],
-            &mut big_f,
-        );
-        for i in 0..d {
-            tm[i] = mean[i] + 0.5 * h * k2m[i];
-        }
-        for i in 0..d * d {
-            tp[i] = cov[i] + 0.5 * h * k2p[i];
-        }
-        rhs(
-            &tm[..d],
-            &tp[..d * d],
-            &mut k3m[..d],
-            &mut k3p[..d * d],
-            &mut big_f,
-        );
-        for i in 0..d {
-            tm[i] = mean[i] + h * k3m[i];
-        }
-        for i in 0..d * d {
-            tp[i] = cov[i] + h * k3p[i];
-        }
-        rhs(
-            &tm[..d],
-            &tp[..d * d],
-            &mut k4m[..d],
-            &mut k4p[..d * d],
-            &mut big_f,
-        );
-        for i in 0..d {
-            mean[i] += h / 6.0 * (k1m[i] + 2.0 * k2m[i] + 2.0 * k3m[i] + k4m[i]);
-        }
-        for i in 0..d * d {
-            cov[i] += h / 6.0 * (k1p[i] + 2.0 * k2p[i] + 2.0 * k3p[i] + k4p[i]);
-        }
-    }
+    crate::filter::gauss::rk4_moments(d, mean, cov, h, substeps.max(1), rhs);
 }
 
 impl LayeredChain {
