@@ -2,9 +2,11 @@
 //!
 //! The library holds everything but the thin `main`s of the stage executables:
 //! models ([`model`]), Markov-chain approximations ([`chain`]), Bayes filters
-//! ([`filter`]), controllers ([`control`]), all iceoryx2 code ([`ipc`]),
-//! real-time plumbing ([`rt`]), configuration/launcher/report ([`pipeline`]),
-//! the stage loops ([`stage`]) and the paper reproductions ([`experiments`]).
+//! ([`filter`]), controllers ([`control`]), the scenario plug-in API and its
+//! registry ([`scenario`]), all iceoryx2 code ([`ipc`]), real-time plumbing
+//! ([`rt`]), the pipeline configuration ([`config`]), the stage loops
+//! ([`stage`]), launcher/supervisor/report ([`pipeline`]), the command line
+//! ([`cli`]) and the paper reproductions ([`experiments`]).
 //!
 //! Conventions used across the crate:
 //! - state vectors are `&[f64]` of the model's state dimension; matrices are
@@ -16,6 +18,8 @@
 
 pub mod belief;
 pub mod chain;
+pub mod cli;
+pub mod config;
 pub mod control;
 pub mod experiments;
 pub mod filter;
@@ -25,6 +29,7 @@ pub mod model;
 pub mod pipeline;
 pub mod rng;
 pub mod rt;
+pub mod scenario;
 pub mod stage;
 
 /// Largest state dimension any model may have (fixed-size messages and

@@ -298,7 +298,7 @@ fn a_killed_refine_resumes_its_chain_and_the_filter_keeps_its_belief() {
     use beliefbus::chain::snapshot::SnapshotView;
     use beliefbus::filter::live_chain::LiveChainFilter;
     use beliefbus::model::SdeModel;
-    use beliefbus::stage::refine::{chain_qos, CHAIN_CHANNEL};
+    use beliefbus::stage::snapshots::{chain_qos, CHAIN_CHANNEL};
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let report = tmp("refine-resume.json");
     // One incremental chain (moving-frame versions are each a lineage).
@@ -403,7 +403,7 @@ fn a_killed_refine_resumes_its_chain_and_the_filter_keeps_its_belief() {
     // from the Gaussian summary: the stage's LiveChainFilter, fed the same
     // two versions.
     let model = cfg.model().unwrap();
-    let prior = beliefbus::stage::filter::prior(&cfg);
+    let prior = cfg.prior();
     let fallback = beliefbus::stage::filter::make_filter(&cfg, 0.0).unwrap();
     let mut f: LiveChainFilter<_, Vec<u64>> =
         LiveChainFilter::new(model, fallback, cfg.refine.max_states, &prior, 0.0);

@@ -11,7 +11,6 @@ use beliefbus::ipc::{Observation, SensorSample, SENSOR_MAX_DIM};
 use beliefbus::model::{Measurement, ObsMask};
 use beliefbus::pipeline::config;
 use beliefbus::pipeline::supervisor_resume::ResumeBelief;
-use beliefbus::stage::filter::prior;
 use beliefbus::stage::ingest::Validator;
 use proptest::prelude::*;
 use std::path::Path;
@@ -126,7 +125,7 @@ proptest! {
     ) {
         let c = cfg();
         let model = c.model().unwrap();
-        let mut f = Ekf::new(model, &c.filter.ekf, &prior(&c), 0.0).unwrap();
+        let mut f = Ekf::new(model, &c.filter.ekf, &c.prior(), 0.0).unwrap();
         // Never a panic: Ok or a typed FilterError.
         let _ = f.predict(t, &[0.0, 0.0]);
         let meas = Measurement { y: &y, mask: ObsMask(mask), std: std.as_ref().map(|s| &s[..]) };

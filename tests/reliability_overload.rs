@@ -21,6 +21,7 @@ use beliefbus::model::SdeModel;
 use beliefbus::pipeline::config;
 use beliefbus::rt::clock::{now_ns, sleep_until_ns};
 use beliefbus::rt::MonotonicClock;
+use beliefbus::scenario::Plant;
 use beliefbus::stage::filter::make_filter;
 use beliefbus::stage::plant::Simulator;
 use beliefbus::stage::{run_stage, DropReason, StageIdentity};

@@ -13,6 +13,7 @@ use beliefbus::model::SdeModel;
 use beliefbus::pipeline::config;
 use beliefbus::rt::clock::now_ns;
 use beliefbus::rt::MonotonicClock;
+use beliefbus::scenario::Plant;
 use beliefbus::stage::filter::Reason;
 use beliefbus::stage::plant::Simulator;
 use beliefbus::stage::{run_stage, StageIdentity};

@@ -26,6 +26,7 @@
 pub mod build;
 pub mod diagnostics;
 pub mod equalize;
+pub mod frame;
 pub mod index;
 pub mod kernel;
 pub mod knn_tree;

@@ -1,5 +1,7 @@
 //! Waypoint sequencing for the closed-loop scenarios: the active waypoint
-//! advances when the believed position comes within `reach_radius` of it.
+//! advances when the believed position comes within `reach_radius` of it
+//! (Euclidean distance over the scenario's position axes, one or more; a
+//! set-point is a route of one waypoint with `cycle = false`).
 
 use serde::{Deserialize, Serialize};
 
@@ -7,8 +9,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RouteConfig {
-    /// Waypoints as (x, y) positions, visited in order.
-    pub waypoints: Vec<[f64; 2]>,
+    /// Waypoints on the scenario's position axes (ship: (x, y)), visited
+    /// in order.
+    pub waypoints: Vec<Vec<f64>>,
     /// Distance at which a waypoint counts as reached.
     pub reach_radius: f64,
     /// Start again at the first waypoint after the last.
@@ -45,8 +48,18 @@ impl WaypointTracker {
     }
 
     /// The active waypoint.
-    pub fn goal(&self) -> [f64; 2] {
-        self.cfg.waypoints[self.active]
+    pub fn goal(&self) -> &[f64] {
+        &self.cfg.waypoints[self.active]
+    }
+
+    /// The active waypoint's first two coordinates, zero-padded (what the
+    /// control message carries).
+    pub fn goal2(&self) -> [f64; 2] {
+        let mut g = [0.0; 2];
+        for (o, v) in g.iter_mut().zip(self.goal()) {
+            *o = *v;
+        }
+        g
     }
 
     /// Number of waypoints reached so far.
@@ -55,25 +68,30 @@ impl WaypointTracker {
     }
 
     /// Distance from `pos` to the active waypoint.
-    pub fn distance(&self, pos: [f64; 2]) -> f64 {
-        let g = self.goal();
-        (pos[0] - g[0]).hypot(pos[1] - g[1])
+    pub fn distance(&self, pos: &[f64]) -> f64 {
+        self.goal()
+            .iter()
+            .zip(pos)
+            .map(|(g, p)| (p - g) * (p - g))
+            .sum::<f64>()
+            .sqrt()
     }
 
-    /// Continue a route after a restart: make the waypoint equal to `goal`
+    /// Continue a route after a restart: make the waypoint whose first two
+    /// coordinates equal `goal` (as the control message carries them)
     /// active (the first one if none is) with `reached` waypoints reached.
     pub fn resume_at(&mut self, goal: [f64; 2], reached: u64) {
         self.active = self
             .cfg
             .waypoints
             .iter()
-            .position(|w| *w == goal)
+            .position(|w| w.iter().zip(goal).all(|(a, b)| *a == b))
             .unwrap_or(0);
         self.reached = reached;
     }
 
     /// Advance if `pos` reached the active waypoint; returns true on a switch.
-    pub fn update(&mut self, pos: [f64; 2]) -> bool {
+    pub fn update(&mut self, pos: &[f64]) -> bool {
         if self.finished || self.distance(pos) > self.cfg.reach_radius {
             return false;
         }
@@ -97,15 +115,30 @@ mod tests {
     #[test]
     fn advances_and_cycles() {
         let mut t = WaypointTracker::new(RouteConfig {
-            waypoints: vec![[0.0, 0.0], [3.0, 0.0]],
+            waypoints: vec![vec![0.0, 0.0], vec![3.0, 0.0]],
             reach_radius: 0.5,
             cycle: true,
         });
-        assert!(!t.update([1.0, 0.0]));
-        assert!(t.update([0.2, 0.1]));
+        assert!(!t.update(&[1.0, 0.0]));
+        assert!(t.update(&[0.2, 0.1]));
         assert_eq!(t.goal(), [3.0, 0.0]);
-        assert!(t.update([2.9, 0.0]));
+        assert!(t.update(&[2.9, 0.0]));
         assert_eq!(t.goal(), [0.0, 0.0]);
         assert_eq!(t.reached(), 2);
+    }
+
+    #[test]
+    fn a_one_axis_set_point_is_held_once_reached() {
+        let mut t = WaypointTracker::new(RouteConfig {
+            waypoints: vec![vec![1.0]],
+            reach_radius: 0.1,
+            cycle: false,
+        });
+        assert_eq!(t.distance(&[0.4]), 0.6);
+        assert!(!t.update(&[0.8]));
+        assert!(!t.update(&[0.95]), "reached, but no switch");
+        assert_eq!(t.reached(), 1);
+        assert_eq!(t.goal(), [1.0]);
+        assert_eq!(t.goal2(), [1.0, 0.0]);
     }
 }

@@ -30,8 +30,8 @@ use crate::filter::BayesFilter;
 use crate::model::discrete::{em_integrate, simulate_observation};
 use crate::model::{Measurement, SdeModel};
 use crate::pipeline::config;
-use crate::stage::filter::prior;
-use crate::stage::refine::{chain_config, Refiner};
+use crate::stage::refine::Refiner;
+use crate::stage::snapshots::chain_config;
 use anyhow::Result;
 use std::time::Duration;
 
@@ -67,7 +67,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let dt = cfg.sample_dt();
     let steps_per_s = (1.0 / dt).round() as usize;
     let steps = seconds * steps_per_s;
-    let prior = prior(&cfg);
+    let prior = cfg.prior();
     let ctl = |t: f64| -> Vec<f64> {
         let mut u = vec![0.0; dims.control];
         if dims.control >= 2 {

@@ -13,8 +13,6 @@ use super::chain_util::{live_chain_filter, split_config_param, Params};
 use super::refine_sim::SimRefine;
 use super::{ExperimentArgs, ExperimentReport, Row};
 use crate::belief::Gaussian;
-use crate::control::cost::TrackingCost;
-use crate::control::mppi::Mppi;
 use crate::control::waypoints::WaypointTracker;
 use crate::control::Controller;
 use crate::filter::chain_filter::ChainFilter;
@@ -22,11 +20,8 @@ use crate::filter::pf::Pf;
 use crate::filter::BayesFilter;
 use crate::model::discrete::{em_integrate, simulate_observation};
 use crate::model::{Measurement, SdeModel};
-use crate::pipeline::config::ControlBackend;
 use crate::pipeline::{config, PipelineConfig};
-use crate::stage::control::implicit_controller;
-use crate::stage::filter::prior;
-use crate::stage::refine::chain_config;
+use crate::stage::snapshots::chain_config;
 use crate::MAX_STATE;
 use anyhow::Result;
 use std::time::Duration;
@@ -70,7 +65,7 @@ pub fn closed_loop(
     let steps_per_s = (1.0 / dt).round() as usize;
     let steps = seconds * steps_per_s;
     let hold = ((hold_s / dt).round() as usize).max(1);
-    let prior = prior(&cfg);
+    let prior = cfg.prior();
     let route = cfg
         .control
         .route
@@ -270,26 +265,9 @@ fn percentile(v: &mut [f64], q: f64) -> f64 {
 /// The configured controller (implicit or MPPI) of `cfg`, seeded as the
 /// control stage seeds it.
 fn controller(cfg: &PipelineConfig) -> Result<Box<dyn Controller>> {
-    let c = &cfg.control;
-    let model = cfg.model()?;
-    let cost = c
-        .cost
-        .as_ref()
-        .ok_or_else(|| anyhow::anyhow!("control.cost missing"))?;
-    Ok(match c.backend {
-        ControlBackend::Implicit => {
-            let mut pc = c.implicit.clone();
-            pc.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(pc.seed));
-            Box::new(implicit_controller(&model, cost, &pc).map_err(|e| anyhow::anyhow!(e))?)
-        }
-        ControlBackend::Mppi => {
-            let tc = TrackingCost::new(&cost.q, &cost.qf, cost.barrier);
-            let mut mc = c.mppi.clone();
-            mc.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(mc.seed));
-            Box::new(Mppi::new(model, tc, &mc)?)
-        }
-        ControlBackend::None => anyhow::bail!("control.backend = none"),
-    })
+    crate::stage::control::make_backend(cfg)?
+        .map(|b| b.into_controller())
+        .ok_or_else(|| anyhow::anyhow!("control.backend = none"))
 }
 
 /// One closed loop: the plant (not projected into the chain's bounds, as in
@@ -330,7 +308,7 @@ fn drive(
         us.push(u.clone());
         let g = filter(k, t, &u, &y)?;
         on_step(k, &g, &x);
-        if route.update([g.mean[0], g.mean[1]]) || !goal_set {
+        if route.update(&g.mean[..2]) || !goal_set {
             let mut goal = [0.0; MAX_STATE];
             let wp = route.goal();
             goal[0] = wp[0];
@@ -381,7 +359,7 @@ pub fn closed_loop_controller(
     let dt = cfg.sample_dt();
     let steps_per_s = (1.0 / dt).round() as usize;
     let steps = seconds * steps_per_s;
-    let prior = prior(&cfg);
+    let prior = cfg.prior();
     let mut out = ControllerRun {
         per_second_chain: vec![0.0; seconds],
         per_second_pf: vec![0.0; seconds],
@@ -390,7 +368,10 @@ pub fn closed_loop_controller(
     let se = |g: &Gaussian, x: &[f64], o: usize| {
         (g.mean[o] - x[o]).powi(2) + (g.mean[o + 1] - x[o + 1]).powi(2)
     };
-    let v_max = cfg.ship_params().v_max;
+    let v_max = cfg
+        .scenario_params::<crate::model::ship::ShipParams>()?
+        .unwrap_or_else(|| crate::model::ship::ShipParams::paper(dt))
+        .v_max;
 
     // The chain filter's loop: refine and filter interleaved in simulated
     // time, as in `closed_loop`.

@@ -140,7 +140,12 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
     let params = ShipParams::paper(dt);
     let ship = Ship::new(params.clone()).map_err(anyhow::Error::msg)?;
     let route = RouteConfig {
-        waypoints: vec![[5.0, 5.0], [-5.0, 5.0], [-5.0, -5.0], [5.0, -5.0]],
+        waypoints: vec![
+            vec![5.0, 5.0],
+            vec![-5.0, 5.0],
+            vec![-5.0, -5.0],
+            vec![5.0, -5.0],
+        ],
         reach_radius: 1.0,
         cycle: false,
     };
@@ -258,8 +263,8 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
             let mut cost = ship_cost();
             let mut x = [3.0, 0.0, 0.0, 0.0];
             let goal = |g: [f64; 2]| [g[0], g[1], 0.0, 0.0];
-            cost.set_goal(&goal(tracker.goal()));
-            ctl.as_controller().set_goal(&goal(tracker.goal()));
+            cost.set_goal(&goal(tracker.goal2()));
+            ctl.as_controller().set_goal(&goal(tracker.goal2()));
             ctl.prepare();
             let mut u = [0.0; 2];
             let mut j = 0.0;
@@ -287,14 +292,14 @@ pub fn run(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
                 let mut next = [0.0; 4];
                 em_step(&ship, &x, &u, dt, &mut plant, &mut next);
                 x = next;
-                if tracker.update([x[0], x[1]]) {
-                    cost.set_goal(&goal(tracker.goal()));
-                    ctl.as_controller().set_goal(&goal(tracker.goal()));
+                if tracker.update(&x[..2]) {
+                    cost.set_goal(&goal(tracker.goal2()));
+                    ctl.as_controller().set_goal(&goal(tracker.goal2()));
                 }
             }
             costs.push(j);
             reached.push(tracker.reached() as f64);
-            final_dist.push(tracker.distance([x[0], x[1]]));
+            final_dist.push(tracker.distance(&x[..2]));
             bar.tick();
         }
         let (mc, sc) = mean_std(&costs);

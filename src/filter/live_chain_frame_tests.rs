@@ -3,17 +3,17 @@
 //! (position p, velocity v; dp = v dt + q_p dw₁, dv = u dt + q_v dw₂) with
 //! position observations, driven as the pipeline drives it: every
 //! `PUBLISH` filter steps a version is built by the refine stage's
-//! moving-frame construction ([`crate::stage::refine::build_framed`])
+//! moving-frame construction ([`crate::chain::frame::build_framed`])
 //! around the filter's current belief, offered and installed.
 
 use super::*;
+use crate::chain::frame::{build_framed, sampler_around, FrameBuild};
 use crate::chain::snapshot::{encode, SnapshotMeta};
 use crate::chain::{Chain, ChainConfig, NearRule};
 use crate::filter::ekf::{Ekf, EkfConfig};
 use crate::filter::kalman::Kalman;
 use crate::model::linear::LinearSde;
 use crate::model::{simulate_observation, Bounds};
-use crate::stage::refine::{build_framed, sampler_around, FrameBuild};
 use nalgebra::DMatrix;
 
 /// Bounds wide enough that the belief stays inside them over the runs. A

@@ -13,14 +13,15 @@ use crate::ipc::{self, Bus, StageKind};
 use crate::rt::{Clock, MonotonicClock};
 use crate::stage::plant::{self, PlantPorts};
 use crate::stage::StageIdentity;
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 /// Options of `beliefbus plant`.
 #[derive(Clone, Debug, Default)]
 pub struct PlantOptions {
-    pub config: PathBuf,
+    pub config: config::ConfigSource,
+    /// The scenarios to resolve it in (`None`: the built-in ones).
+    pub registry: Option<crate::scenario::Registry>,
     /// Seconds to run (default `run.duration_s`; 0 = until Ctrl-C).
     pub duration_s: Option<f64>,
     pub sets: Vec<String>,
@@ -54,7 +55,11 @@ pub fn run_plant(opts: &PlantOptions, stop: &AtomicBool) -> Result<PlantSummary,
     if let Some(p) = &opts.prefix {
         sets.push(format!("run.prefix=\"{p}\""));
     }
-    let cfg = config::load(&opts.config, &sets)?;
+    let registry = opts
+        .registry
+        .clone()
+        .unwrap_or_else(crate::scenario::Registry::builtin);
+    let cfg = opts.config.load(&registry, &sets)?;
     let duration = opts.duration_s.unwrap_or(cfg.run.duration_s);
     if !(duration.is_finite() && duration >= 0.0) {
         return Err(config::ConfigError {

@@ -64,7 +64,12 @@ pub enum SensorSource {
 /// Options of `beliefbus run`.
 #[derive(Clone, Debug, Default)]
 pub struct RunOptions {
-    pub config: PathBuf,
+    /// The config file, or a registered scenario's embedded config.
+    pub config: config::ConfigSource,
+    /// The scenarios to resolve it in (`None`: the built-in ones). With a
+    /// registry of its own the launcher starts every stage from this same
+    /// executable (`<exe> stage <name>`), which knows that registry.
+    pub registry: Option<crate::scenario::Registry>,
     /// `--sensor plant|external`.
     pub sensor: SensorSource,
     /// Overrides `run.duration_s`.
@@ -169,13 +174,15 @@ fn describe(s: &ExitStatus) -> String {
     }
 }
 
-/// How to start stage `kind`: its own executable when it is next to us and
-/// built from the same sources, else our hidden `stage` subcommand.
-fn stage_command(kind: StageKind) -> Result<(Command, bool)> {
+/// How to start stage `kind`: its own executable when it is next to us,
+/// built from the same sources and the run uses only the built-in
+/// scenarios, else our hidden `stage` subcommand (a user's binary with its
+/// own registry always runs its stages itself).
+fn stage_command(kind: StageKind, builtin: bool) -> Result<(Command, bool)> {
     let me = std::env::current_exe().context("cannot locate the beliefbus executable")?;
     let dir = me.parent().unwrap_or(Path::new("."));
     let exe = dir.join(format!("beliefbus-{}", kind.name()));
-    if exe.is_file() {
+    if builtin && exe.is_file() {
         let same = Command::new(&exe)
             .arg("--build-id")
             .output()
@@ -232,15 +239,18 @@ fn spawn_child(
     notes: &mut Vec<String>,
     resume: Option<&Path>,
 ) -> Result<Child> {
-    let (mut cmd, own) = stage_command(kind)?;
-    if !own {
+    let builtin = opts.registry.as_ref().is_none_or(|r| r.is_builtin());
+    let (mut cmd, own) = stage_command(kind, builtin)?;
+    if !own && builtin {
         let n = "stage executables next to beliefbus are missing or from another build \
                  (`cargo run` builds only beliefbus); ran the stages as `beliefbus stage <name>`";
         if !notes.iter().any(|x| x == n) {
             notes.push(n.to_string());
         }
     }
-    cmd.arg(&opts.config).arg("--prefix").arg(prefix);
+    cmd.args(opts.config.stage_args())
+        .arg("--prefix")
+        .arg(prefix);
     for s in &opts.sets {
         cmd.arg("--set").arg(s);
     }
@@ -286,7 +296,11 @@ impl Stage {
 
 /// Run the pipeline; returns the report JSON.
 pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, LaunchError> {
-    let mut cfg = config::load(&opts.config, &opts.sets)?;
+    let registry = opts
+        .registry
+        .clone()
+        .unwrap_or_else(crate::scenario::Registry::builtin);
+    let mut cfg = opts.config.load(&registry, &opts.sets)?;
     if let Some(d) = opts.duration_s {
         if !(d.is_finite() && d >= 0.0) {
             return Err(config::ConfigError {
@@ -317,7 +331,7 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
     if !opts.quiet {
         eprintln!(
             "beliefbus: {} ({} Hz, filter {}, control {}) under shared-memory prefix {prefix}",
-            cfg.run.scenario.name(),
+            cfg.run.scenario,
             cfg.plant.sensor_rate_hz,
             cfg.filter.backend.name(),
             cfg.control.backend.name()
@@ -409,8 +423,12 @@ fn supervise(
         },
         "launcher",
     )?;
-    let model = cfg.model()?;
-    let mut mon = Monitor::open(&bus, model, (cfg.run.warmup_s * 1e9) as u64)?;
+    let system = cfg
+        .scenario
+        .as_ref()
+        .map(|s| s.system.clone())
+        .context("the config's scenario is unresolved")?;
+    let mut mon = Monitor::open(&bus, system, (cfg.run.warmup_s * 1e9) as u64)?;
     if cfg.control.backend == ControlBackend::None {
         mon = mon.beliefs_are_output();
     }
@@ -438,7 +456,7 @@ fn supervise(
     let _ = mon.poll();
     drop(state);
     let input = ReportInput {
-        scenario: cfg.run.scenario.name().into(),
+        scenario: cfg.run.scenario.clone(),
         duration_s: cfg.run.duration_s,
         sensor_rate_hz: cfg.plant.sensor_rate_hz,
         filter_backend: cfg.filter.backend.name().into(),

@@ -6,7 +6,7 @@
 //! large buffers. Beliefs are matched to the truth of the sensor sample they
 //! were updated with (same channel and sequence number); samples measured
 //! in the warm-up are left out. The no-filter reference inverts each raw
-//! measurement ([`AnyModel::raw_position`]).
+//! measurement ([`crate::scenario::System::raw_position`]).
 //!
 //! ```text
 //! rmse_position     = √( mean over beliefs ‖m_pos − x_pos‖² )
@@ -14,10 +14,11 @@
 //! rmse_position_raw = √( mean over samples ‖g⁻¹(y)_pos − x_pos‖² )
 //! ```
 
-use super::scenario::AnyModel;
 use crate::ipc::{Belief, Bus, Control, IpcError, StageKind, StageStats, Subscriber, Truth};
 use crate::rt::LatencyHist;
+use crate::scenario::System;
 use crate::MAX_STATE;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Truths kept for matching (≥ 4 s at 1 kHz).
@@ -40,7 +41,7 @@ pub struct Accuracy {
 /// Matches beliefs with truth and accumulates squared errors.
 #[derive(Debug)]
 pub struct AccuracyTracker {
-    model: AnyModel,
+    system: Arc<dyn System>,
     warmup_ns: u64,
     first_ns: Option<u64>,
     latest_ns: u64,
@@ -54,9 +55,9 @@ pub struct AccuracyTracker {
 }
 
 impl AccuracyTracker {
-    pub fn new(model: AnyModel, warmup_ns: u64) -> Self {
+    pub fn new(system: Arc<dyn System>, warmup_ns: u64) -> Self {
         Self {
-            model,
+            system,
             warmup_ns,
             first_ns: None,
             latest_ns: 0,
@@ -78,13 +79,14 @@ impl AccuracyTracker {
     /// Add a truth sample (and its raw measurement's error).
     pub fn add_truth(&mut self, t: &Truth) {
         if self.counted(t.header.t_valid_ns) {
-            let axes = self.model.position_axes();
+            let axes = self.system.position_axes();
             let mut raw = [0.0; MAX_STATE];
-            self.model.raw_position(&t.y, &mut raw);
-            for (i, &a) in axes.iter().enumerate() {
-                self.se_raw += (raw[i] - t.x[a]).powi(2);
+            if self.system.raw_position(&t.y, &mut raw) {
+                for (i, &a) in axes.iter().enumerate() {
+                    self.se_raw += (raw[i] - t.x[a]).powi(2);
+                }
+                self.n_raw += 1;
             }
-            self.n_raw += 1;
         }
         self.latest_ns = self.latest_ns.max(t.header.t_valid_ns);
         self.ring[(t.header.seq as usize) % TRUTH_RING] = Some(*t);
@@ -120,7 +122,7 @@ impl AccuracyTracker {
             return true;
         }
         let d = (b.dim as usize).min(t.dim as usize).min(MAX_STATE);
-        for &a in self.model.position_axes() {
+        for &a in self.system.position_axes() {
             self.se_pos += (b.mean[a] - t.x[a]).powi(2);
         }
         for i in 0..d {
@@ -180,7 +182,7 @@ fn slot(kind: StageKind) -> usize {
 
 impl Monitor {
     /// Subscribe on `bus`.
-    pub fn open(bus: &Bus, model: AnyModel, warmup_ns: u64) -> Result<Self, IpcError> {
+    pub fn open(bus: &Bus, system: Arc<dyn System>, warmup_ns: u64) -> Result<Self, IpcError> {
         Ok(Self {
             stats: bus.subscriber_with(64, false)?,
             belief: bus.subscriber_with(256, false)?,
@@ -188,7 +190,7 @@ impl Monitor {
             control: bus.subscriber_with(256, false)?,
             latest: [None; 5],
             seen: [None; 5],
-            accuracy: AccuracyTracker::new(model, warmup_ns),
+            accuracy: AccuracyTracker::new(system, warmup_ns),
             last_belief: None,
             last_control: None,
             last_truth: None,
@@ -300,17 +302,14 @@ impl Monitor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::ship::ShipParams;
-    use crate::model::vanderpol::VanDerPolParams;
-    use crate::pipeline::Scenario;
+    use crate::scenario::{BuildContext, Registry};
 
-    fn ship() -> AnyModel {
-        AnyModel::build(
-            Scenario::Ship,
-            &ShipParams::paper(0.01),
-            &VanDerPolParams::default(),
-        )
-        .unwrap()
+    fn ship() -> Arc<dyn System> {
+        Registry::builtin()
+            .get("ship")
+            .unwrap()
+            .build(None, &BuildContext { sample_dt: 0.01 })
+            .unwrap()
     }
 
     fn truth(seq: u64, t: u64, x: [f64; 4]) -> Truth {

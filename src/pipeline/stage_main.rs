@@ -4,8 +4,10 @@
 //! join the pipeline and run the stage loop.
 //!
 //! ```text
-//! beliefbus-<stage> [CONFIG] [--set KEY=VALUE ...] [--prefix PREFIX] [--resume FILE]
+//! beliefbus-<stage> [CONFIG | --scenario NAME] [--set KEY=VALUE ...] [--prefix PREFIX] [--resume FILE]
 //! ```
+//! Without CONFIG the stage runs the config embedded for `--scenario NAME`
+//! (no name: the default scenario's), exactly as `beliefbus run` does.
 //! `--resume FILE` (given by the supervisor when it restarts a stage):
 //! the state to resume from ([`crate::pipeline::supervisor_resume`]).
 //! Started by hand (without `--prefix`), the last stage to stop removes the
@@ -16,8 +18,9 @@
 
 use crate::ipc::{self, StageKind};
 use crate::pipeline::config;
-use crate::pipeline::supervisor_resume::Resume;
 use crate::rt::MonotonicClock;
+use crate::scenario::Registry;
+use crate::stage::resume::Resume;
 use crate::stage::{run_stage_with, StageIdentity};
 use clap::Parser;
 use std::path::PathBuf;
@@ -25,14 +28,13 @@ use std::path::PathBuf;
 /// Fingerprint of the sources this binary was built from (see `build.rs`).
 pub const BUILD_ID: &str = env!("BELIEFBUS_BUILD_ID");
 
-/// Default config, relative to the working directory.
-pub const DEFAULT_CONFIG: &str = "configs/default.toml";
-
 #[derive(Parser, Debug)]
 struct Args {
-    /// Pipeline config (TOML).
-    #[arg(default_value = DEFAULT_CONFIG)]
-    config: PathBuf,
+    /// Pipeline config (TOML; default: the scenario's built-in config).
+    config: Option<PathBuf>,
+    /// Run the built-in config of this registered scenario.
+    #[arg(long)]
+    scenario: Option<String>,
     /// Override one config key by dotted path (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     sets: Vec<String>,
@@ -48,14 +50,24 @@ struct Args {
     build_id: bool,
 }
 
-/// Run stage `kind` as this process with the process's arguments; returns
-/// the exit status.
+/// Run stage `kind` as this process with the process's arguments and the
+/// built-in scenarios; returns the exit status.
 pub fn main(kind: StageKind) -> i32 {
-    main_with(kind, std::env::args_os())
+    main_in(&Registry::builtin(), kind, std::env::args_os())
 }
 
 /// [`main`] with explicit arguments (the first is the program name).
 pub fn main_with<I, T>(kind: StageKind, argv: I) -> i32
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    main_in(&Registry::builtin(), kind, argv)
+}
+
+/// [`main_with`] resolving scenarios in `registry` (a user's binary with
+/// scenarios of its own runs its stages through this).
+pub fn main_in<I, T>(registry: &Registry, kind: StageKind, argv: I) -> i32
 where
     I: IntoIterator<Item = T>,
     T: Into<std::ffi::OsString> + Clone,
@@ -82,7 +94,9 @@ where
     if let Some(p) = &args.prefix {
         sets.push(format!("run.prefix=\"{p}\""));
     }
-    let cfg = match config::load(&args.config, &sets) {
+    let cfg = match config::ConfigSource::from_args(args.config.clone(), args.scenario.clone())
+        .and_then(|src| src.load(registry, &sets))
+    {
         Ok(c) => c,
         Err(e) => {
             eprintln!("{name}: {e}");

@@ -16,13 +16,15 @@
 //! (estimation-only scenarios) the stage consumes beliefs and publishes
 //! nothing.
 
+use super::resume::ResumeControl;
 use super::{
     guarded, secs_since, stopped, DropReason, Metrics, SeqTracker, StageError, StageIdentity,
     StatsPort,
 };
+use crate::config::{ControlBackend, PipelineConfig};
 use crate::control::cost::TrackingCost;
 use crate::control::mppi::Mppi;
-use crate::control::path_integral::{PathIntegralConfig, PathIntegralController};
+use crate::control::path_integral::PathIntegralController;
 use crate::control::waypoints::WaypointTracker;
 use crate::control::{ControlError, Controller};
 use crate::ipc::{
@@ -30,10 +32,8 @@ use crate::ipc::{
     Subscriber, Wake,
 };
 use crate::model::SdeModel;
-use crate::pipeline::config::{ControlBackend, CostConfig};
-use crate::pipeline::supervisor_resume::ResumeControl;
-use crate::pipeline::{AnyModel, PipelineConfig};
 use crate::rt::Clock;
+use crate::scenario::{DynAffine, DynModel};
 use crate::{MAX_CONTROL, MAX_STATE};
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
@@ -98,11 +98,19 @@ impl ControlPorts {
 /// A configured controller backend (concrete, so backend-specific steps
 /// such as MPPI's `prepare` are reachable).
 pub enum Backend {
-    Mppi(Box<Mppi<AnyModel>>),
-    Implicit(Box<PathIntegralController>),
+    Mppi(Box<Mppi<DynModel>>),
+    Implicit(Box<PathIntegralController<DynAffine>>),
 }
 
 impl Backend {
+    /// The controller behind it, boxed.
+    pub fn into_controller(self) -> Box<dyn Controller> {
+        match self {
+            Backend::Mppi(m) => m,
+            Backend::Implicit(c) => c,
+        }
+    }
+
     fn controller(&mut self) -> &mut dyn Controller {
         match self {
             Backend::Mppi(m) => m.as_mut(),
@@ -129,24 +137,6 @@ impl Backend {
     }
 }
 
-/// The implicit path-integral controller of the ship for `cost` (fails on
-/// other scenarios and, with condition (8) named, on a model it cannot
-/// control).
-pub fn implicit_controller(
-    model: &AnyModel,
-    cost: &CostConfig,
-    cfg: &PathIntegralConfig,
-) -> Result<PathIntegralController, String> {
-    let AnyModel::Ship(ship) = model else {
-        return Err(format!(
-            "the implicit controller needs a control-affine model (ship), not {}",
-            model.name()
-        ));
-    };
-    let tc = TrackingCost::new(&cost.q, &cost.qf, cost.barrier);
-    PathIntegralController::new(ship.clone(), tc, cfg.clone()).map_err(|e| e.to_string())
-}
-
 /// Build the configured backend (None for `none`). Its random stream is
 /// seeded from `run.seed` mixed with `control.mppi.seed` or
 /// `control.implicit.seed`.
@@ -171,14 +161,18 @@ pub fn make_backend(cfg: &PipelineConfig) -> Result<Option<Backend>, StageError>
             Ok(Some(Backend::Mppi(Box::new(m))))
         }
         ControlBackend::Implicit => {
-            let model = cfg.model()?;
+            let affine = cfg
+                .system()
+                .control_affine()
+                .ok_or_else(|| build(&"the scenario has no control-affine view"))?;
             let cost = c
                 .cost
                 .as_ref()
                 .ok_or_else(|| build(&"control.cost missing"))?;
+            let tc = TrackingCost::new(&cost.q, &cost.qf, cost.barrier);
             let mut pc = c.implicit.clone();
             pc.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(pc.seed));
-            let ctl = implicit_controller(&model, cost, &pc).map_err(|e| build(&e))?;
+            let ctl = PathIntegralController::new(affine, tc, pc).map_err(|e| build(&e))?;
             Ok(Some(Backend::Implicit(Box::new(ctl))))
         }
     }
@@ -213,7 +207,7 @@ pub fn run_with(
     );
     let model = cfg.model()?;
     let dims = model.dims();
-    let axes = model.position_axes();
+    let axes = cfg.system().position_axes();
     let mut backend = make_backend(cfg)?;
     let mut route = match (&backend, &cfg.control.route) {
         (Some(_), Some(r)) => Some(WaypointTracker::new(r.clone())),
@@ -281,19 +275,22 @@ pub fn run_with(
                         }
                     }
                     if let Some(r) = route.as_mut() {
-                        let pos = [g.mean[axes[0]], g.mean[axes[axes.len() - 1]]];
-                        if r.update(pos) || !goal_set {
+                        let mut pos = [0.0; MAX_STATE];
+                        for (p, &a) in pos.iter_mut().zip(axes) {
+                            *p = g.mean[a];
+                        }
+                        if r.update(&pos[..axes.len()]) || !goal_set {
                             let mut goal = [0.0; MAX_STATE];
-                            let wp = r.goal();
-                            goal[axes[0]] = wp[0];
-                            goal[axes[axes.len() - 1]] = wp[1];
+                            for (&a, &w) in axes.iter().zip(r.goal()) {
+                                goal[a] = w;
+                            }
                             backend.controller().set_goal(&goal[..dims.state]);
                             if let Some(c) = eval_cost.as_mut() {
                                 c.set_goal(&goal[..dims.state]);
                             }
                             goal_set = true;
                         }
-                        out.goal = r.goal();
+                        out.goal = r.goal2();
                         out.waypoints_reached = r.reached();
                     }
                     let c = dims.control;

@@ -25,11 +25,14 @@
 //! plus an O(d²) reset per version, allocation-free.
 
 use super::chain_guard::{Install, StaleGuard};
+use super::resume::ResumeBelief;
+use super::snapshots::{chain_qos, CHAIN_CHANNEL};
 use super::{
     guarded, secs_since, stopped, DropReason, Metrics, SeqTracker, StageError, StageIdentity,
     StatsPort,
 };
 use crate::belief::Gaussian;
+use crate::config::{FilterBackend, PipelineConfig};
 use crate::filter::ekf::Ekf;
 use crate::filter::live_chain::{LiveChainFilter, SwapInfo};
 use crate::filter::pf::Pf;
@@ -40,10 +43,8 @@ use crate::ipc::{
     SliceSubscriber, StageKind, StageStats, Subscriber, Wake, Wakeable,
 };
 use crate::model::{Measurement, ObsMask, SdeModel};
-use crate::pipeline::config::FilterBackend;
-use crate::pipeline::supervisor_resume::ResumeBelief;
-use crate::pipeline::{AnyModel, PipelineConfig};
 use crate::rt::Clock;
+use crate::scenario::DynModel;
 use crate::MAX_CONTROL;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
@@ -142,11 +143,7 @@ impl FilterPorts {
             stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
             chain: if cfg.filter.backend == FilterBackend::Chain {
                 let dim = cfg.model()?.dims().state;
-                Some(bus.slice_subscriber(
-                    super::refine::CHAIN_CHANNEL,
-                    &super::refine::chain_qos(cfg, dim),
-                    true,
-                )?)
+                Some(bus.slice_subscriber(CHAIN_CHANNEL, &chain_qos(cfg, dim), true)?)
             } else {
                 None
             },
@@ -154,15 +151,10 @@ impl FilterPorts {
     }
 }
 
-/// The prior of `cfg`: N(prior_mean, diag(prior_std²)).
-pub fn prior(cfg: &PipelineConfig) -> Gaussian {
-    Gaussian::diagonal(&cfg.filter.prior_mean, &cfg.filter.prior_std)
-}
-
 /// Build the configured backend at time `t0` from the prior. The filter's
 /// random stream is seeded from `run.seed` mixed with `filter.pf.seed`.
 pub fn make_filter(cfg: &PipelineConfig, t0: f64) -> Result<Box<dyn BayesFilter>, StageError> {
-    make_filter_from(cfg, &prior(cfg), t0)
+    make_filter_from(cfg, &cfg.prior(), t0)
 }
 
 /// [`make_filter`] from an explicit prior (a restart resumes from the last
@@ -214,7 +206,7 @@ pub enum Backend {
 /// and measurement), so in the usual case the fallback adds nothing to the
 /// sensor→belief latency.
 pub struct GuardedChain {
-    pub chain: LiveChainFilter<AnyModel, SliceSample<u64>>,
+    pub chain: LiveChainFilter<DynModel, SliceSample<u64>>,
     fallback: Option<Box<dyn BayesFilter>>,
     guard: StaleGuard,
     /// The belief of the last step comes from the fallback.
@@ -548,7 +540,7 @@ pub fn run_with(
     // A restart resumes from the last published belief (the chain backend
     // spreads it over the first snapshot it receives).
     let resumed = resume.and_then(|b| b.gaussian().map(|g| (b, g)));
-    let start = resumed.as_ref().map_or_else(|| prior(cfg), |(_, g)| *g);
+    let start = resumed.as_ref().map_or_else(|| cfg.prior(), |(_, g)| *g);
     let mut filter = Backend::new(cfg, &start, 0.0)?;
     let prepare = Duration::from_secs_f64(cfg.filter.chain.prepare_budget_us * 1e-6);
     let dims = filter.dims();

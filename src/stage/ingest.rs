@@ -25,13 +25,13 @@
 
 use super::reorder::{RejectLog, ReorderBuffer};
 use super::{guarded, stopped, DropReason, Metrics, StageError, StageIdentity, StatsPort};
+use crate::config::ChannelConfig;
+use crate::config::PipelineConfig;
 use crate::ipc::{
     run_loop, Bus, Hop, Observation, Publisher, SensorSample, StageKind, StageStats, Subscriber,
     Wake, SENSOR_MAX_DIM,
 };
 use crate::model::SdeModel;
-use crate::pipeline::config::ChannelConfig;
-use crate::pipeline::PipelineConfig;
 use crate::rt::Clock;
 use crate::MAX_OBS;
 use std::sync::atomic::AtomicBool;

@@ -18,15 +18,17 @@ pub mod ingest;
 pub mod plant;
 pub mod refine;
 pub mod reorder;
+pub mod resume;
+pub mod snapshots;
 
+use crate::config::{ConfigError, PipelineConfig};
 use crate::ipc::BusConfig;
 use crate::ipc::{
     stats_flags, Bus, Hop, HopStats, IpcError, Publisher, StageKind, StageStats, Trace,
     STATS_DROP_REASONS, STATS_HOPS, STATS_REASONS,
 };
-use crate::pipeline::supervisor_resume::Resume;
-use crate::pipeline::{ConfigError, PipelineConfig};
 use crate::rt::{Budget, Clock, LatencyHist, RtApplied};
+use crate::stage::resume::Resume;
 use std::sync::atomic::AtomicBool;
 
 /// Why a stage stopped abnormally.
@@ -404,7 +406,7 @@ pub fn run_stage(
 }
 
 /// [`run_stage`] resuming from `resume` (a restart by the supervisor; see
-/// [`crate::pipeline::supervisor_resume`]).
+/// [`resume`]).
 pub fn run_stage_with(
     bus: &BusConfig,
     cfg: &PipelineConfig,

@@ -12,19 +12,17 @@
 //! the control in force. (The plant reads them at its tick, so it never needs
 //! to be woken by the controller.)
 
+use super::resume::Resume;
 use super::{stopped, DropReason, Metrics, StageError, StageIdentity, StatsPort};
+use crate::config::PipelineConfig;
 use crate::ipc::{Bus, Control, Publisher, SensorSample, StageKind, StageStats, Subscriber, Truth};
-use crate::model::discrete::em_integrate;
-use crate::model::{simulate_observation, SdeModel};
-use crate::pipeline::supervisor_resume::Resume;
-use crate::pipeline::PipelineConfig;
-use crate::rng::{self, SimRng};
+use crate::model::SdeModel;
+use crate::rng;
 use crate::rt::Clock;
-use crate::{MAX_CONTROL, MAX_OBS, MAX_STATE};
+use crate::{MAX_CONTROL, MAX_OBS};
 use std::sync::atomic::AtomicBool;
 
-/// RNG stream id of the plant (mixed with `run.seed`).
-pub const PLANT_STREAM: u64 = 0x0050_4C41_4E54; // "PLANT"
+pub use crate::scenario::PLANT_STREAM;
 /// Controls buffered between two ticks.
 const CONTROL_BUFFER: usize = 16;
 /// A plant this many periods late skips ahead instead of catching up
@@ -52,70 +50,9 @@ impl PlantPorts {
     }
 }
 
-/// The simulation state, separate from the ports so it can be tested alone.
-#[derive(Debug)]
-pub struct Simulator<M: SdeModel> {
-    model: M,
-    x: [f64; MAX_STATE],
-    u: [f64; MAX_CONTROL],
-    rng: SimRng,
-    max_dt: f64,
-}
-
-impl<M: SdeModel> Simulator<M> {
-    /// Start at `x0` with zero control.
-    pub fn new(model: M, x0: &[f64], seed: u64, max_dt: f64) -> Self {
-        let mut x = [0.0; MAX_STATE];
-        x[..x0.len()].copy_from_slice(x0);
-        Self {
-            model,
-            x,
-            u: [0.0; MAX_CONTROL],
-            rng: rng::stream(seed, PLANT_STREAM),
-            max_dt,
-        }
-    }
-
-    /// The true state.
-    pub fn state(&self) -> &[f64] {
-        &self.x[..self.model.dims().state]
-    }
-
-    /// The control in force.
-    pub fn control(&self) -> &[f64] {
-        &self.u[..self.model.dims().control]
-    }
-
-    /// Apply `u` from now on.
-    pub fn set_control(&mut self, u: &[f64]) {
-        let n = self.model.dims().control.min(u.len());
-        self.u[..n].copy_from_slice(&u[..n]);
-    }
-
-    /// Integrate over `dt` seconds with the control in force.
-    pub fn advance(&mut self, dt: f64) {
-        let d = self.model.dims();
-        em_integrate(
-            &self.model,
-            &mut self.x[..d.state],
-            &self.u[..d.control],
-            dt,
-            self.max_dt,
-            &mut self.rng,
-        );
-    }
-
-    /// Draw a measurement of the current state into `y`.
-    pub fn measure(&mut self, y: &mut [f64]) {
-        let d = self.model.dims();
-        simulate_observation(&self.model, &self.x[..d.state], &mut self.rng, y);
-    }
-
-    /// The model.
-    pub fn model(&self) -> &M {
-        &self.model
-    }
-}
+/// The simulation state: the scenario's plant ([`crate::scenario::SdePlant`]
+/// for an SDE model).
+pub use crate::scenario::SdePlant as Simulator;
 
 /// Run the plant until `stop`; returns its final stats.
 pub fn run(
@@ -153,16 +90,15 @@ pub fn run_resumed(
     let rt = cfg.stages.get(StageKind::Plant);
     let warmup_ns = (cfg.run.warmup_s * 1e9) as u64;
     let mut m = Metrics::new(rt.budget_ns(), &[], warmup_ns);
-    let model = cfg.model()?;
-    let dims = model.dims();
-    let pos_axes = model.position_axes();
+    let system = cfg.system();
+    let dims = cfg.model()?.dims();
+    let pos_axes = system.position_axes();
     let truth0 = resume
         .truth
         .as_ref()
         .filter(|t| t.x.len() == dims.state && t.x.iter().all(|v| v.is_finite()));
     let seq0 = truth0.map(|t| t.seq + 1).unwrap_or(0);
-    let mut sim = Simulator::new(
-        model,
+    let mut sim = system.plant(
         truth0.map(|t| &t.x[..]).unwrap_or(&cfg.plant.initial_state),
         match resume.restarts {
             0 => cfg.run.seed,
@@ -257,9 +193,15 @@ pub fn run_resumed(
         m.budget.record_released(t_k, t_wake, t_pub);
         if m.past_warmup(t_k) {
             m.processed_after_warmup += 1;
-            if let (Some(g), 2) = (goal, pos_axes.len()) {
+            // The control message carries the goal's first two axes.
+            if let (Some(g), 1..=2) = (goal, pos_axes.len()) {
                 let x = sim.state();
-                m.goal_distance_sum += (x[pos_axes[0]] - g[0]).hypot(x[pos_axes[1]] - g[1]);
+                let d2: f64 = pos_axes
+                    .iter()
+                    .zip(g)
+                    .map(|(&a, g)| (x[a] - g).powi(2))
+                    .sum();
+                m.goal_distance_sum += d2.sqrt();
                 m.goal_distance_count += 1;
             }
         }

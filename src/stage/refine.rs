@@ -1,4 +1,4 @@
-//! Refine: the anytime Markov-chain refinement stage (issue 4). It grows a
+//! Refine: the anytime Markov-chain refinement stage. It grows a
 //! bounded chain around the latest belief and publishes versioned snapshots
 //! of it, written in place on the `chain` slice channel, for the filter's
 //! chain backend.
@@ -48,23 +48,23 @@
 //! With a filter backend other than `chain` nobody reads the chain: refine
 //! then only follows the beliefs and reports (no rounds, no snapshots).
 
+use super::resume::Resume;
+use super::snapshots::{chain_config, chain_qos, CHAIN_CHANNEL};
 use super::{
     guarded, stopped, DropReason, Metrics, SeqTracker, StageError, StageIdentity, StatsPort,
 };
 use crate::belief::Gaussian;
+use crate::chain::frame::{build_framed, sampler_around, FrameBuild};
 use crate::chain::snapshot::{self, SnapshotMeta};
-use crate::chain::{
-    moment_equations, Chain, ChainConfig, NearRule, PropagationKernel, Sampler, TimeEqualized,
-};
+use crate::chain::{Chain, PropagationKernel, Sampler, TimeEqualized};
+use crate::config::PipelineConfig;
 use crate::ipc::{
-    run_loop, Belief, Bus, Control, Qos, SlicePublisher, SliceQos, StageKind, StageStats,
-    Subscriber, Wake,
+    run_loop, Belief, Bus, Control, SlicePublisher, StageKind, StageStats, Subscriber, Wake,
 };
 use crate::model::SdeModel;
-use crate::pipeline::supervisor_resume::Resume;
-use crate::pipeline::{scenario::AnyModel, PipelineConfig};
 use crate::rng::SimRng;
 use crate::rt::Clock;
+use crate::scenario::DynModel;
 use crate::{MAX_CONTROL, MAX_STATE};
 use rand::RngExt;
 use std::sync::atomic::AtomicBool;
@@ -75,153 +75,6 @@ pub mod resume;
 
 /// Points on the belief's predicted path that retirement measures from.
 const PATH_POINTS: usize = 4;
-
-/// The slice channel of chain snapshots.
-pub const CHAIN_CHANNEL: &str = "chain";
-
-/// The model in the frame that moves at the constant velocity `w`:
-/// drift f(x, u) − w (the moving-frame chains, `refine.moving_frame`).
-pub struct Framed<'a, M: SdeModel + ?Sized> {
-    pub inner: &'a M,
-    pub w: [f64; MAX_STATE],
-}
-
-impl<M: SdeModel + ?Sized> SdeModel for Framed<'_, M> {
-    fn name(&self) -> &str {
-        self.inner.name()
-    }
-    fn dims(&self) -> crate::model::Dims {
-        self.inner.dims()
-    }
-    fn drift(&self, x: &[f64], u: &[f64], f: &mut [f64]) {
-        self.inner.drift(x, u, f);
-        for (fi, wi) in f.iter_mut().zip(&self.w) {
-            *fi -= wi;
-        }
-    }
-    fn diffusion(&self, x: &[f64], big_f: &mut [f64]) {
-        self.inner.diffusion(x, big_f)
-    }
-    fn obs_mean(&self, x: &[f64], g: &mut [f64]) {
-        self.inner.obs_mean(x, g)
-    }
-    fn obs_std(&self, std: &mut [f64]) {
-        self.inner.obs_std(std)
-    }
-    fn obs_residual(&self, y: &[f64], yhat: &[f64], r: &mut [f64]) {
-        self.inner.obs_residual(y, yhat, r)
-    }
-    fn bounds(&self) -> &crate::model::Bounds {
-        self.inner.bounds()
-    }
-}
-
-/// How a moving-frame version is drawn and built (the `refine` settings).
-#[derive(Clone, Debug)]
-pub struct FrameBuild {
-    /// Sampling std = `inflate` × belief std ...
-    pub inflate: f64,
-    /// ... mixed with this fraction of uniform draws ...
-    pub uniform_fraction: f64,
-    /// ... the std floored at this fraction of the bounds' width.
-    pub min_std_fraction: f64,
-    pub chain: ChainConfig,
-    /// δ's upper bound (the filter's sample period).
-    pub dt: f64,
-}
-
-/// The sampling distribution N(mean, (inflate·σ)²) of `belief`'s
-/// covariance (σ floored), mixed with uniform draws.
-pub fn sampler_around<M: SdeModel + ?Sized>(
-    model: &M,
-    belief: &Gaussian,
-    mean: &[f64],
-    p: &FrameBuild,
-) -> Option<Sampler> {
-    let d = belief.dim;
-    let b = model.bounds();
-    let mut g = *belief;
-    g.mean_mut().copy_from_slice(mean);
-    for i in 0..d {
-        let floor = p.min_std_fraction * (b.hi()[i] - b.lo()[i]);
-        let v = g.cov_at(i, i);
-        if v < floor * floor {
-            g.set_cov(i, i, floor * floor);
-        }
-    }
-    Sampler::around(&g, p.inflate, p.uniform_fraction)
-}
-
-/// A moving-frame version (`refine.moving_frame`): a batch chain (Alg. 2.1)
-/// of `n` states drawn around `belief` ([`sampler_around`]), built for
-/// f(x, u₀) − w with w the mean uncontrolled drift of its states (the
-/// filter computes the same w from the snapshot,
-/// [`crate::filter::live_chain::frame_of`]), and δ fitted to its holding
-/// times.
-pub fn build_framed<M: SdeModel + ?Sized>(
-    model: &M,
-    belief: &Gaussian,
-    n: usize,
-    p: &FrameBuild,
-    rng: &mut SimRng,
-) -> Result<(Chain, TimeEqualized), crate::chain::ChainError> {
-    let d = belief.dim;
-    let nu = model.dims().control;
-    let sampler = sampler_around(model, belief, &belief.mean[..d], p);
-    let mut pts = vec![0.0; n * d];
-    for x in pts.chunks_exact_mut(d) {
-        match &sampler {
-            Some(smp) => smp.sample(model.bounds(), rng, x),
-            None => Sampler::Uniform.sample(model.bounds(), rng, x),
-        }
-    }
-    let mut w = [0.0; MAX_STATE];
-    let mut f = [0.0; MAX_STATE];
-    for x in pts.chunks_exact(d) {
-        model.drift(x, &[0.0; MAX_CONTROL][..nu], &mut f[..d]);
-        for a in 0..d {
-            w[a] += f[a];
-        }
-    }
-    for wa in &mut w[..d] {
-        *wa /= n as f64;
-    }
-    let framed = Framed { inner: model, w };
-    let c = Chain::batch(&framed, p.chain.clone(), &pts)?;
-    let mut eq = TimeEqualized::new(p.dt)?;
-    eq.fit(c.holding());
-    Ok((c, eq))
-}
-
-/// The construction parameters of the pipeline's chain: moment-matching
-/// kernel with the k-NN Near rule of `refine.knn_c`, built for u₀ = 0.
-pub fn chain_config(cfg: &PipelineConfig, dim: usize) -> ChainConfig {
-    ChainConfig::moment_matched(dim).with_near(NearRule::Knn {
-        c: cfg.refine.knn_c,
-    })
-}
-
-/// The snapshot channel's QoS (identical for refine and filter): room for a
-/// chain of `refine.max_states` states with the k-NN rule's out-degree.
-pub fn chain_qos(cfg: &PipelineConfig, dim: usize) -> SliceQos {
-    let n = cfg.refine.max_states;
-    let k = ((cfg.refine.knn_c * (n as f64).ln()).ceil() as usize)
-        .max(moment_equations(dim) + 1)
-        .min(n - 1);
-    SliceQos {
-        max_len: snapshot::words_needed(dim, n, n * k),
-        qos: Qos {
-            history: 1,
-            max_buffer: 1,
-            default_buffer: 1,
-            // Two: a restarted refine connects while the dead one's
-            // connection may still be held by the filter.
-            max_publishers: 2,
-            max_subscribers: 3,
-            max_nodes: 8,
-        },
-    }
-}
 
 /// The ports of the refine stage.
 pub struct RefinePorts {
@@ -247,7 +100,7 @@ impl RefinePorts {
 
 /// The anytime chain builder (the stage's state, usable without ports).
 pub struct Refiner {
-    model: AnyModel,
+    model: DynModel,
     cfg: PipelineConfig,
     chain: Option<Chain>,
     eq: TimeEqualized,
@@ -291,7 +144,7 @@ impl Refiner {
             eq,
             kern: PropagationKernel::default(),
             vol: Vec::new(),
-            belief: super::filter::prior(cfg),
+            belief: cfg.prior(),
             rng: crate::rng::stream(cfg.run.seed, 0x5eed_c4a1),
             lineage,
             version: 0,
@@ -649,7 +502,7 @@ pub fn run_with(
     // backend refine only follows the beliefs and reports, instead of
     // spending a core's worth of rounds (and cache and memory bandwidth the
     // real-time stages share) on a chain nobody reads.
-    let active = cfg.filter.backend == crate::pipeline::config::FilterBackend::Chain;
+    let active = cfg.filter.backend == crate::config::FilterBackend::Chain;
     let mut next_work = if active { 0u64 } else { u64::MAX };
     let mut next_publish = 0u64;
     let belief = &ports.belief;

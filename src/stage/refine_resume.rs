@@ -30,10 +30,10 @@
 use super::{chain_config, Refiner};
 use crate::chain::snapshot::SnapshotView;
 use crate::chain::Chain;
+use crate::config::PipelineConfig;
 use crate::ipc::StageKind;
-use crate::pipeline::supervisor_resume::Resume;
-use crate::pipeline::PipelineConfig;
 use crate::rt::Clock;
+use crate::stage::resume::Resume;
 use crate::stage::StageError;
 use std::time::{Duration, Instant};
 
@@ -206,7 +206,7 @@ impl Refiner {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pipeline::config::load;
+    use crate::config::load;
     use std::path::Path;
     use std::time::Duration;
 

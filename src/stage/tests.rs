@@ -3,10 +3,11 @@
 //! its outputs through the real shared-memory ports.
 
 use super::*;
+use crate::config::load;
 use crate::ipc::cleanup;
 use crate::ipc::{Belief, Control, Message, Observation, SensorSample, Truth};
-use crate::pipeline::config::load;
 use crate::rt::{MonotonicClock, SimClock};
+use crate::scenario::Plant;
 use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -435,7 +436,6 @@ fn filter_loop_publishes_one_belief_per_observation_and_tracks_the_ship() {
         let clock = MonotonicClock;
         let n = 200;
         let data = ship_observations(&cfg, n, clock.now_ns());
-        let model = cfg.model().unwrap();
         let (mut se_filter, mut se_raw, mut count) = (0.0, 0.0, 0);
         for (o, x) in &data {
             let mut o = *o;
@@ -454,7 +454,7 @@ fn filter_loop_publishes_one_belief_per_observation_and_tracks_the_ship() {
             assert_eq!(b.status & crate::ipc::belief_status::UPDATE_REFUSED, 0);
             if o.header.seq >= 50 {
                 let mut raw = [0.0; 2];
-                model.raw_position(&o.y, &mut raw);
+                assert!(cfg.system().raw_position(&o.y, &mut raw));
                 se_filter += (b.mean[0] - x[0]).powi(2) + (b.mean[1] - x[1]).powi(2);
                 se_raw += (raw[0] - x[0]).powi(2) + (raw[1] - x[1]).powi(2);
                 count += 1;

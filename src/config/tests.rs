@@ -1,5 +1,7 @@
 use super::*;
 use crate::control::path_integral::BeliefMode;
+use crate::model::ship::ShipParams;
+use crate::model::SdeModel;
 
 const BASE: &str = r#"
 [run]
@@ -34,11 +36,16 @@ fn err(text: &str, sets: &[&str]) -> ConfigError {
 #[test]
 fn a_valid_config_loads_with_defaults_filled_in() {
     let c = load_str(BASE, &[]).unwrap();
-    assert_eq!(c.run.scenario, Scenario::Ship);
+    assert_eq!(c.run.scenario, "ship");
     assert_eq!(c.filter.pf.particles, 200);
     assert_eq!(c.stages.filter.budget_ns(), 2_000_000);
     assert_eq!(c.run.seed, 1);
-    assert_eq!(c.ship_params(), ShipParams::paper(0.01));
+    // No [ship] section: the scenario's defaults, the paper's at 100 Hz.
+    assert_eq!(c.scenario_params::<ShipParams>().unwrap(), None);
+    let ship = c.model().unwrap();
+    let mut std = [0.0; 2];
+    ship.obs_std(&mut std);
+    assert_eq!(std[0], ShipParams::paper(0.01).range_std);
     assert_eq!(c.channels(2)[0].components, vec![0, 1]);
 }
 
@@ -116,7 +123,7 @@ fn syntax_errors_name_the_line() {
 
 #[test]
 fn the_default_config_runs_the_implicit_controller_and_mppi_stays_selectable() {
-    let text = include_str!("../../../configs/default.toml");
+    let text = include_str!("../../configs/default.toml");
     let c = load_str(text, &[]).unwrap();
     assert_eq!(c.control.backend, ControlBackend::Implicit);
     assert_eq!(c.control.backend.name(), "implicit");
