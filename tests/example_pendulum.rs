@@ -24,7 +24,11 @@ fn example() -> PathBuf {
         .and_then(|deps| deps.parent())
         .unwrap()
         .join("examples/pendulum");
-    assert!(exe.is_file(), "{} not built", exe.display());
+    assert!(
+        exe.is_file(),
+        "{} not built: `cargo test` builds the examples (or `cargo build --example pendulum`)",
+        exe.display()
+    );
     exe
 }
 

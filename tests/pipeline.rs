@@ -37,6 +37,18 @@ fn run(args: &[&str]) -> Output {
         .unwrap()
 }
 
+/// `beliefbus ARGS` started outside the repository: built-in configs must
+/// not depend on the working directory.
+fn run_elsewhere(args: &[&str]) -> Output {
+    let dir = tmp("cwd");
+    std::fs::create_dir_all(&dir).unwrap();
+    Command::new(exe())
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .unwrap()
+}
+
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).to_string()
 }
@@ -100,9 +112,10 @@ fn check_report_keys(r: &Value) {
 fn the_closed_loop_runs_across_five_processes_and_leaves_nothing_behind() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let report = tmp("closed-loop.json");
-    let o = run(&[
+    // No config: the default scenario's built-in config, from outside the
+    // repository.
+    let o = run_elsewhere(&[
         "run",
-        "configs/default.toml",
         "--duration",
         "4",
         "--report",
@@ -171,9 +184,10 @@ fn the_closed_loop_runs_across_five_processes_and_leaves_nothing_behind() {
 fn estimation_only_runs_with_the_ekf_and_no_control_output() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let report = tmp("vdp.json");
-    let o = run(&[
+    let o = run_elsewhere(&[
         "run",
-        "configs/vanderpol.toml",
+        "--scenario",
+        "vanderpol",
         "--duration",
         "3",
         "--quiet",
@@ -193,6 +207,30 @@ fn estimation_only_runs_with_the_ekf_and_no_control_output() {
     let acc = &r["accuracy"];
     assert!(acc["rmse_position"].as_f64().unwrap() < acc["rmse_position_raw"].as_f64().unwrap());
     assert!(shm_files(r["prefix"].as_str().unwrap()).is_empty());
+}
+
+#[test]
+fn scenarios_lists_the_registry_with_each_ones_backends() {
+    let o = run_elsewhere(&["scenarios"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("ship (default):"), "{out}");
+    assert!(out.contains("vanderpol:"), "{out}");
+    assert!(
+        out.contains(
+            "filter.backend: chain | pf | ekf | ukf; control.backend: implicit | mppi | none"
+        ),
+        "{out}"
+    );
+    assert!(out.contains("control.backend: none\n"), "{out}");
+    // An unknown scenario is a config error naming the registered ones.
+    let o = run_elsewhere(&["run", "--scenario", "warp", "--duration", "1"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("registered: ship, vanderpol"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]
