@@ -170,6 +170,16 @@ mod tests {
             "defaults"
         );
         assert!(e.build(Some(&t), &ctx).is_ok());
+        // A partial section keeps the other defaults.
+        let mut partial = toml::Table::new();
+        partial.insert("e".into(), 0.5.into());
+        let sys = e.build(Some(&partial), &ctx).unwrap();
+        let mut f = [0.0; 16];
+        sys.model().diffusion(&[1.0, 1.0, 0.0, 0.0], &mut f);
+        assert_eq!(f.iter().fold(0.0f64, |m, v| m.max(v.abs())), 0.5);
+        let mut std = [0.0; 2];
+        sys.model().obs_std(&mut std);
+        assert_eq!(std[0], ShipParams::paper(0.01).range_std);
         t.insert("ee".into(), 1.0.into());
         let err = e.build(Some(&t), &ctx).err().unwrap();
         assert!(err.problem.contains("unknown field"), "{err:?}");

@@ -59,9 +59,9 @@ pub struct BuildContext {
 /// let registry = Registry::builtin().with::<Pendulum>();
 /// ```
 pub trait Scenario: 'static {
-    /// The parameter section `[<NAME>]`. Unknown keys should be refused
-    /// (`#[serde(deny_unknown_fields)]`); missing keys take the struct's
-    /// serde defaults.
+    /// The parameter section `[<NAME>]`, laid over [`Scenario::defaults`]:
+    /// keys the config leaves out keep their default values. Unknown keys
+    /// should be refused (`#[serde(deny_unknown_fields)]`).
     type Params: DeserializeOwned + Serialize;
     /// Registry name (`run.scenario`), lower case.
     const NAME: &'static str;

@@ -43,7 +43,7 @@ fn build_typed<S: Scenario>(
 ) -> Result<Box<dyn System>, ParamError> {
     let params = match section {
         None => S::defaults(ctx),
-        Some(t) => serde_path_to_error::deserialize(toml::Value::Table(t.clone())).map_err(
+        Some(t) => serde_path_to_error::deserialize(over_defaults::<S>(t, ctx)).map_err(
             |e: serde_path_to_error::Error<toml::de::Error>| {
                 let path = e.path().to_string();
                 ParamError {
@@ -57,6 +57,29 @@ fn build_typed<S: Scenario>(
         key: String::new(),
         problem,
     })
+}
+
+/// The section `t` laid over the scenario's defaults: keys the config
+/// leaves out keep their default values (also for parameter structs whose
+/// defaults depend on the run, like the ship's noise at the sensor rate);
+/// the config's keys, unknown ones included, win.
+fn over_defaults<S: Scenario>(t: &toml::Table, ctx: &BuildContext) -> toml::Value {
+    fn lay(base: &mut toml::Table, top: &toml::Table) {
+        for (k, v) in top {
+            match (base.get_mut(k), v) {
+                (Some(toml::Value::Table(b)), toml::Value::Table(t)) => lay(b, t),
+                _ => {
+                    base.insert(k.clone(), v.clone());
+                }
+            }
+        }
+    }
+    let mut base = match toml::Value::try_from(S::defaults(ctx)) {
+        Ok(toml::Value::Table(b)) => b,
+        _ => toml::Table::new(),
+    };
+    lay(&mut base, t);
+    toml::Value::Table(base)
 }
 
 /// What `beliefbus scenarios` lists about one scenario (built with its
