@@ -267,6 +267,15 @@ pub fn main_with(registry: Registry) -> i32 {
         let argv = std::iter::once(format!("beliefbus-{name}")).chain(args.iter().cloned());
         return crate::pipeline::stage_main::main_in(&registry, kind, argv);
     }
+    if let Command::Experiment {
+        name, runs, json, ..
+    } = &cli.command
+    {
+        if let Err(e) = check_experiment_args(name.as_deref(), *runs, json.as_deref()) {
+            eprintln!("beliefbus: {e}");
+            return 2;
+        }
+    }
     if let Command::Scenarios = &cli.command {
         print!("{}", scenarios_table(&registry));
         return 0;
@@ -334,6 +343,45 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// Refuse what would only fail (or print nonsense) after a long run: an
+/// unknown experiment, zero runs, a `--json` path that cannot be written.
+fn check_experiment_args(
+    name: Option<&str>,
+    runs: Option<usize>,
+    json: Option<&std::path::Path>,
+) -> Result<(), String> {
+    if let Some(n) = name {
+        if crate::experiments::find(n).is_none() {
+            return Err(format!(
+                "unknown experiment '{n}' (see `beliefbus experiment --list`)"
+            ));
+        }
+    }
+    if runs == Some(0) {
+        return Err("experiment: `--runs`: must be at least 1".into());
+    }
+    if let Some(path) = json {
+        if path.is_dir() {
+            return Err(format!("`--json`: {} is a directory", path.display()));
+        }
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let c = std::ffi::CString::new(dir.as_os_str().as_encoded_bytes())
+            .map_err(|_| format!("`--json`: bad path {}", path.display()))?;
+        // SAFETY: `c` is a valid NUL-terminated path for the call's duration.
+        let writable = dir.is_dir() && unsafe { libc::access(c.as_ptr(), libc::W_OK) } == 0;
+        if !writable {
+            return Err(format!(
+                "`--json`: cannot write into {} (missing or not writable)",
+                dir.display()
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// `beliefbus scenarios`: one block per registered scenario.
