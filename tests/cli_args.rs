@@ -10,7 +10,10 @@ fn beliefbus(args: &[&str]) -> (Option<i32>, String) {
         .current_dir(std::env::temp_dir())
         .output()
         .unwrap();
-    (o.status.code(), String::from_utf8_lossy(&o.stderr).to_string())
+    (
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr).to_string(),
+    )
 }
 
 #[test]
@@ -27,7 +30,10 @@ fn bad_experiment_arguments_exit_2_with_one_line() {
             ][..],
             "--json",
         ),
-        (&["experiment", "vanderpol", "--json", "/tmp"][..], "directory"),
+        (
+            &["experiment", "vanderpol", "--json", "/tmp"][..],
+            "directory",
+        ),
     ] {
         let (code, err) = beliefbus(args);
         assert_eq!(code, Some(2), "{args:?}: {err}");

@@ -20,6 +20,7 @@
 //! problem; the binaries print it and exit with status 2.
 
 pub mod load;
+pub mod reference;
 pub mod restart;
 pub mod stale;
 mod validate;
@@ -69,7 +70,7 @@ impl ConfigError {
 }
 
 /// The whole pipeline.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PipelineConfig {
     pub run: RunConfig,
@@ -117,7 +118,7 @@ impl std::fmt::Debug for ResolvedScenario {
 }
 
 /// `[run]`: what runs and where.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RunConfig {
     /// The registered scenario to run (`beliefbus scenarios` lists them).
@@ -157,7 +158,7 @@ fn default_duration() -> f64 {
 }
 
 /// `[plant]`: the simulated plant.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PlantConfig {
     /// Sensor sample rate (Hz).
@@ -173,7 +174,7 @@ pub struct PlantConfig {
 }
 
 /// `[[ingest.channels]]`: one sensor channel.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ChannelConfig {
     /// Channel id in the sensor sample.
@@ -192,7 +193,7 @@ fn default_max_rate() -> f64 {
 }
 
 /// `[ingest]`: validation of sensor samples.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct IngestConfig {
     /// Samples measured longer than this before they arrive are rejected as
@@ -227,7 +228,7 @@ impl Default for IngestConfig {
 }
 
 /// Filter backends.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum FilterBackend {
     Pf,
@@ -249,7 +250,7 @@ impl FilterBackend {
 }
 
 /// `[filter]`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FilterConfig {
     pub backend: FilterBackend,
@@ -282,7 +283,7 @@ fn default_max_obs_age() -> f64 {
 }
 
 /// `[filter.chain]`: the chain backend.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ChainFilterConfig {
     /// Time per filter step (µs) spent preparing a newly received chain
@@ -314,7 +315,7 @@ impl Default for ChainFilterConfig {
 }
 
 /// Controller backends.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum ControlBackend {
     /// Model-predictive path-integral control.
@@ -336,7 +337,7 @@ impl ControlBackend {
 }
 
 /// `[control.cost]`: the tracking cost (weights per state component).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CostConfig {
     /// Running weights per unit time.
@@ -349,7 +350,7 @@ pub struct CostConfig {
 }
 
 /// `[control]`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ControlConfig {
     pub backend: ControlBackend,
@@ -372,7 +373,7 @@ pub struct ControlConfig {
 }
 
 /// `[refine]`: the anytime chain refinement.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RefineConfig {
     /// Period of its work rounds (ms).
@@ -397,6 +398,7 @@ pub struct RefineConfig {
     /// propagated by the drift for τ ~ U[0, horizon_s] ...
     #[serde(default = "default_inflate")]
     pub inflate: f64,
+    /// ... (incremental chain) the horizon of that drift, in seconds ...
     #[serde(default = "default_horizon")]
     pub horizon_s: f64,
     /// ... mixed with this fraction of uniform draws on the model's bounds.
@@ -471,7 +473,9 @@ impl Default for RefineConfig {
 }
 
 /// How a stage waits for input.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum WakeKind {
     /// Block in a WaitSet until notified.
@@ -482,7 +486,7 @@ pub enum WakeKind {
 }
 
 /// `[stages.<name>]`: scheduling of one stage process.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StageRtConfig {
     /// Core to pin to (none: unpinned).
@@ -558,7 +562,7 @@ impl StageRtConfig {
 }
 
 /// `[stages]`.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StagesConfig {
     #[serde(default)]

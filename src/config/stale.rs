@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 /// `[filter.chain.stale]`: when the chain's belief is stale (see the module
 /// docs).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct StaleConfig {
     /// Run the fallback filter and publish it when the chain is stale

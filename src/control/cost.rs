@@ -11,11 +11,14 @@ use crate::MAX_STATE;
 use serde::{Deserialize, Serialize};
 
 /// A soft disc constraint on two coordinates.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DiscBarrier {
+    /// The two state coordinates the disc constrains.
     pub axes: (usize, usize),
+    /// Radius of the disc; the wall acts beyond it.
     pub radius: f64,
+    /// Weight of the quadratic penalty on the distance beyond the radius.
     pub weight: f64,
 }
 

@@ -50,7 +50,7 @@ use serde::{Deserialize, Serialize};
 pub const MPPI_STREAM: u64 = 0x4d50_5049; // "MPPI"
 
 /// Settings of MPPI (defaults suit the ship: force limits ±3, 2 s horizon).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct MppiConfig {
     /// Number of sampled control sequences K.

@@ -49,7 +49,7 @@ use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
 /// Receding or shrinking horizon.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum HorizonMode {
     /// `horizon_steps` steps from every t.
@@ -59,7 +59,7 @@ pub enum HorizonMode {
 }
 
 /// How the belief enters.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum BeliefMode {
     /// Certainty equivalent: ψ at the belief mean.
@@ -69,7 +69,7 @@ pub enum BeliefMode {
 }
 
 /// How ∂ₓ log ψ is computed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum GradientConfig {
     /// Exact derivative of the linear-map estimator (one banded solve per
@@ -85,7 +85,7 @@ pub enum GradientConfig {
 
 /// How the previous plan is moved to the current time before it warm-starts
 /// the minimisation.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum WarmShift {
     /// By the elapsed time in (fractional) path steps, interpolating the
@@ -97,7 +97,7 @@ pub enum WarmShift {
 }
 
 /// Which implicit-sampling map.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum MapConfig {
     Linear,
@@ -105,7 +105,7 @@ pub enum MapConfig {
 }
 
 /// Settings of the path-integral controller.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PathIntegralConfig {
     /// Path steps n of the horizon (the cap for a shrinking horizon).

@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 /// Settings of a waypoint route.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RouteConfig {
     /// Waypoints on the scenario's position axes (ship: (x, y)), visited

@@ -25,7 +25,7 @@ use crate::{MAX_NOISE, MAX_OBS, MAX_STATE};
 use serde::{Deserialize, Serialize};
 
 /// Settings of the EKF.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct EkfConfig {
     /// Largest RK4 substep of the moment equations (seconds).

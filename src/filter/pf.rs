@@ -35,7 +35,7 @@ use serde::{Deserialize, Serialize};
 pub const PF_STREAM: u64 = 0x5046; // "PF"
 
 /// Settings of the bootstrap particle filter.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PfConfig {
     /// Number of particles N.

@@ -44,7 +44,7 @@ use serde::{Deserialize, Serialize};
 const MAX_SIGMA: usize = 2 * MAX_STATE + 1;
 
 /// Settings of the UKF.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct UkfConfig {
     /// Largest prediction substep (seconds).

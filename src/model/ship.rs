@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// Parameters of the drifting ship.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ShipParams {
     /// Process-noise coefficient e on every state.

@@ -19,16 +19,20 @@ use super::{Bounds, Dims, SdeJacobians, SdeModel};
 use serde::{Deserialize, Serialize};
 
 /// Parameters of the Van der Pol oscillator.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct VanDerPolParams {
+    /// Damping μ of ẍ1 − μ(1 − x1²)ẋ1 + x1 = 0.
     pub mu: f64,
+    /// Process-noise coefficient on x1.
     pub e1: f64,
+    /// Process-noise coefficient on x2.
     pub e2: f64,
     /// σ of one sampled measurement of x1.
     pub obs_std: f64,
-    /// Half-widths of the compact set S.
+    /// Half-width of the compact set S in x1.
     pub x1_max: f64,
+    /// Half-width of the compact set S in x2.
     pub x2_max: f64,
 }
 

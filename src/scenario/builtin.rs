@@ -23,6 +23,9 @@ impl Scenario for ShipScenario {
     fn defaults(ctx: &BuildContext) -> ShipParams {
         ShipParams::paper(ctx.sample_dt)
     }
+    fn params_schema() -> Option<schemars::Schema> {
+        Some(schemars::schema_for!(ShipParams))
+    }
     fn build(p: ShipParams, _ctx: &BuildContext) -> Result<Box<dyn System>, String> {
         let ship = Ship::new(p)?;
         Ok(Box::new(ShipSystem {
@@ -79,6 +82,9 @@ impl Scenario for VanDerPolScenario {
     const CONFIG: &'static str = include_str!("../../configs/vanderpol.toml");
     fn defaults(_ctx: &BuildContext) -> VanDerPolParams {
         VanDerPolParams::default()
+    }
+    fn params_schema() -> Option<schemars::Schema> {
+        Some(schemars::schema_for!(VanDerPolParams))
     }
     fn build(p: VanDerPolParams, _ctx: &BuildContext) -> Result<Box<dyn System>, String> {
         Ok(Box::new(VanDerPolSystem {

@@ -74,6 +74,12 @@ pub trait Scenario: 'static {
     fn defaults(ctx: &BuildContext) -> Self::Params;
     /// Build the system; an invalid parameter is an `Err` naming it.
     fn build(params: Self::Params, ctx: &BuildContext) -> Result<Box<dyn System>, String>;
+    /// The JSON schema of `Params` for the generated configuration
+    /// reference (`schemars::schema_for!(Params)` when `Params` derives
+    /// `schemars::JsonSchema`); `None`: the section is not documented there.
+    fn params_schema() -> Option<schemars::Schema> {
+        None
+    }
 }
 
 /// One sensor channel of a scenario: which components of the model's

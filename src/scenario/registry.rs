@@ -24,6 +24,7 @@ pub struct Entry {
     /// The embedded pipeline config that runs it.
     pub config: &'static str,
     build: BuildFn,
+    schema: fn() -> Option<schemars::Schema>,
 }
 
 impl Entry {
@@ -34,6 +35,11 @@ impl Entry {
         ctx: &BuildContext,
     ) -> Result<Arc<dyn System>, ParamError> {
         (self.build)(section, ctx).map(Arc::from)
+    }
+
+    /// The parameter section's JSON schema ([`Scenario::params_schema`]).
+    pub fn params_schema(&self) -> Option<schemars::Schema> {
+        (self.schema)()
     }
 }
 
@@ -143,6 +149,7 @@ impl Registry {
             summary: S::SUMMARY,
             config: S::CONFIG,
             build: build_typed::<S>,
+            schema: S::params_schema,
         });
         self.builtin_only = false;
         self.default = Some(S::NAME);
@@ -157,6 +164,11 @@ impl Registry {
     /// The scenario called `name`.
     pub fn get(&self, name: &str) -> Option<&Entry> {
         self.entries.iter().find(|e| e.name == name)
+    }
+
+    /// Every scenario, in registration order.
+    pub fn entries(&self) -> &[Entry] {
+        &self.entries
     }
 
     /// Every name, in registration order.
