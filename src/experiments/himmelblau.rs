@@ -181,7 +181,10 @@ fn basins(x0: [f64; 2], sigma: f64, t_final: f64, dt: f64) -> Vec<Basin> {
             }
         })
         .collect();
-    let best = out.iter().map(|b| b.log_weight).fold(f64::NEG_INFINITY, f64::max);
+    let best = out
+        .iter()
+        .map(|b| b.log_weight)
+        .fold(f64::NEG_INFINITY, f64::max);
     for b in &mut out {
         b.log_weight -= best;
     }
