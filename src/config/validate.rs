@@ -189,6 +189,16 @@ impl PipelineConfig {
 
         let p = &self.plant;
         positive("plant.sensor_rate_hz", p.sensor_rate_hz)?;
+        if p.sensor_rate_hz > limits::MAX_SENSOR_RATE_HZ {
+            return Err(ConfigError::new(
+                "plant.sensor_rate_hz",
+                format!(
+                    "must be at most {} Hz, got {}",
+                    limits::MAX_SENSOR_RATE_HZ,
+                    p.sensor_rate_hz
+                ),
+            ));
+        }
         positive("plant.integration_dt", p.integration_dt)?;
         if p.integration_dt > self.sample_dt() {
             return Err(ConfigError::new(
@@ -325,7 +335,7 @@ impl PipelineConfig {
                 .validate()
                 .map_err(|(k, p)| ConfigError::new(format!("{key}.restart.{k}"), p))?;
         }
-        Ok(())
+        self.validate_limits()
     }
 
     fn validate_control(&self, model: &DynModel) -> Result<(), ConfigError> {

@@ -309,6 +309,9 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
             }
             .into());
         }
+        // A duration the supervisor can add to an Instant (never a panic
+        // after the stages started).
+        config::limits::seconds("--duration", d, config::limits::MAX_DURATION_S)?;
         cfg.run.duration_s = d;
     }
     let swept = cleanup::sweep_stale_runs();
