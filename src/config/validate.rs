@@ -54,6 +54,25 @@ impl RefineConfig {
 }
 
 impl PipelineConfig {
+    /// The controls an actuator of this run may apply: the model's control
+    /// dimension, inside the controller's limits (`control.mppi.u_min` /
+    /// `u_max`, ±`control.implicit.u_max`; any finite value without a
+    /// controller).
+    pub fn control_limits(&self) -> Result<crate::ipc::ControlLimits, ConfigError> {
+        use crate::ipc::ControlLimits;
+        let dim = self.model()?.dims().control;
+        Ok(match self.control.backend {
+            ControlBackend::Mppi => {
+                ControlLimits::new(&self.control.mppi.u_min, &self.control.mppi.u_max)
+            }
+            ControlBackend::Implicit => {
+                let m = self.control.implicit.u_max;
+                ControlLimits::new(&vec![-m; dim], &vec![m; dim])
+            }
+            ControlBackend::None => ControlLimits::finite(dim),
+        })
+    }
+
     /// Where the stages meet: `run.prefix` and `run.instance`.
     pub fn bus(&self) -> crate::ipc::BusConfig {
         crate::ipc::BusConfig {

@@ -20,6 +20,7 @@
 //!   before blocking, for the latency-critical path.
 
 pub mod cleanup;
+pub mod control_check;
 pub mod messages;
 mod ports;
 pub mod sensor_api;
@@ -27,6 +28,7 @@ mod signals;
 mod slice;
 mod wait;
 
+pub use control_check::{ControlLimits, ControlReject};
 pub use messages::*;
 pub use ports::{Message, Publisher, Qos, Subscriber};
 pub use signals::install_stop_handler;

@@ -398,6 +398,19 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
     if let Some(e) = failure {
         return Err(e.into());
     }
+    // The filter counted more observations than ingest published: someone
+    // else published on the observation channel. The run's figures cannot
+    // be trusted, so it fails.
+    if let Some((published, counted, unaccounted)) = input.observation_books() {
+        if unaccounted < 0 {
+            return Err(anyhow::anyhow!(
+                "observation accounting went negative: the filter counted {counted} \
+                 observations but ingest published {published} (a foreign publisher on \
+                 the observation channel?)"
+            )
+            .into());
+        }
+    }
     if !failed.is_empty() {
         return Err(anyhow::anyhow!("stage(s) did not stop cleanly: {}", failed.join(", ")).into());
     }
@@ -660,6 +673,7 @@ fn on_death(ctx: &mut Ctx, mon: &mut Monitor, s: &mut Stage) -> Result<()> {
                 GiveUpReason::PolicyNever => "its restart policy is \"never\"",
                 GiveUpReason::CleanExit => "it exited cleanly (restart.on = \"failure\")",
                 GiveUpReason::TooManyRestarts => "restart.max_restarts is used up",
+                GiveUpReason::Fatal => "it reported an unrecoverable state (its message above)",
             };
             bail!(
                 "the {} stage exited unexpectedly ({cause}); not restarted: {why}",

@@ -101,6 +101,10 @@ fn reasons(kind: StageKind, r: &[u64]) -> Value {
         StageKind::Ingest => ingest::Reason::ALL.iter().map(|r| r.name()).collect(),
         StageKind::Filter => filter::Reason::ALL.iter().map(|r| r.name()).collect(),
         StageKind::Control => control::Reason::ALL.iter().map(|r| r.name()).collect(),
+        StageKind::Plant => crate::stage::plant::Reason::ALL
+            .iter()
+            .map(|r| r.name())
+            .collect(),
         _ => Vec::new(),
     };
     let mut m = Map::new();
