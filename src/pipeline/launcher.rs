@@ -257,6 +257,9 @@ fn spawn_child(
     if let Some(r) = resume {
         cmd.arg("--resume").arg(r);
     }
+    // The stages admit samples on internal channels only from processes
+    // whose parent is this launcher (ipc::trust).
+    cmd.env(ipc::trust::LAUNCHER_PID_ENV, std::process::id().to_string());
     // Own process group: a terminal's Ctrl-C reaches only the launcher, which
     // stops the stages in order. Parent-death signal: if the launcher dies,
     // the stages stop too (and release their shared memory).

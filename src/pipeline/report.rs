@@ -302,7 +302,10 @@ impl ReportInput {
     pub fn observation_books(&self) -> Option<(u64, u64, i64)> {
         let i = self.stats(StageKind::Ingest)?;
         let f = self.stats(StageKind::Filter)?;
-        let counted = f.processed + f.dropped + f.rejected;
+        // Observations the filter refused as not ingest's were never
+        // published by ingest: outside the books.
+        let foreign = f.rejected_by_reason[crate::stage::filter::Reason::Foreign as usize];
+        let counted = f.processed + f.dropped + f.rejected - foreign.min(f.rejected);
         Some((i.processed, counted, i.processed as i64 - counted as i64))
     }
 

@@ -17,7 +17,8 @@ use super::resume::Resume;
 use super::{stopped, DropReason, Metrics, StageError, StageIdentity, StatsPort};
 use crate::config::PipelineConfig;
 use crate::ipc::{
-    Bus, Control, ControlReject, Publisher, SensorSample, StageKind, StageStats, Subscriber, Truth,
+    Bus, Control, ControlReject, Publisher, PublisherGate, SensorSample, StageKind, StageStats,
+    Subscriber, Truth,
 };
 use crate::model::SdeModel;
 use crate::rng;
@@ -37,11 +38,19 @@ pub enum Reason {
     NonFinite = 1,
     /// Outside the controller's limits.
     Limit = 2,
+    /// Published by a process that is not the run's controller
+    /// ([`crate::ipc::PublisherGate`]).
+    Foreign = 3,
 }
 
 impl Reason {
     /// Every reason, in index order.
-    pub const ALL: [Reason; 3] = [Reason::Dimension, Reason::NonFinite, Reason::Limit];
+    pub const ALL: [Reason; 4] = [
+        Reason::Dimension,
+        Reason::NonFinite,
+        Reason::Limit,
+        Reason::Foreign,
+    ];
 
     /// Report name (`stages.plant.rejected_by_reason.<name>`).
     pub fn name(self) -> &'static str {
@@ -49,6 +58,7 @@ impl Reason {
             Reason::Dimension => "control_dimension",
             Reason::NonFinite => "control_non_finite",
             Reason::Limit => "control_limit",
+            Reason::Foreign => "foreign_publisher",
         }
     }
 
@@ -147,6 +157,7 @@ pub fn run_resumed(
         cfg.plant.integration_dt,
     );
     let limits = cfg.control_limits()?;
+    let mut gate = PublisherGate::from_env();
     let mut log = RejectLog::new(Reason::ALL.len(), REJECT_LOG_PERIOD_NS);
     let period_ns = (1e9 / cfg.plant.sensor_rate_hz).round().max(1.0) as u64;
     let mut pending = [Control::default(); CONTROL_BUFFER];
@@ -192,16 +203,20 @@ pub fn run_resumed(
         // ignored, and the last good one stays in force.
         let mut n = 0;
         for _ in 0..CONTROL_BUFFER {
-            let Some(c) = ports.control.receive()? else {
+            let Some((c, origin)) = ports.control.receive_from()? else {
                 break;
             };
-            match limits.check(&c) {
+            let verdict = if gate.admit(&ports.control, &origin) {
+                limits.check(&c).map_err(Reason::of)
+            } else {
+                Err(Reason::Foreign)
+            };
+            match verdict {
                 Ok(()) => {
                     pending[n] = c;
                     n += 1;
                 }
                 Err(r) => {
-                    let r = Reason::of(r);
                     m.reject(r as usize);
                     if let Some(more) = log.note(r as usize, t_wake) {
                         eprintln!(
