@@ -280,7 +280,28 @@ fn signal(pid: u32, sig: libc::c_int) {
     unsafe { libc::kill(pid as libc::pid_t, sig) };
 }
 
+/// How long the supervisor waits for a SIGKILLed stage to be reaped before
+/// it gives up on it (a stage starved of CPU by a runaway SCHED_FIFO stage
+/// on its core cannot even die): it never blocks on a child.
+const KILL_REAP_TIMEOUT: Duration = Duration::from_secs(2);
+
 impl Stage {
+    /// SIGKILL and reap within [`KILL_REAP_TIMEOUT`]; false if it could not
+    /// be reaped in that time (the child stays registered, unreaped).
+    fn kill_and_reap(&mut self) -> bool {
+        signal(self.pid, libc::SIGKILL);
+        let deadline = Instant::now() + KILL_REAP_TIMEOUT;
+        loop {
+            if self.poll_exit() {
+                return true;
+            }
+            if Instant::now() > deadline {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
     /// Reap if exited; true if it has.
     fn poll_exit(&mut self) -> bool {
         if self.exit.is_some() {
@@ -822,9 +843,13 @@ fn drive(
                     limit.as_secs_f64() * 1e3
                 );
                 s.hung = true;
-                signal(s.pid, libc::SIGKILL);
-                if let Some(mut c) = s.child.take() {
-                    s.exit = c.wait().ok();
+                if !s.kill_and_reap() {
+                    bail!(
+                        "the {} stage (pid {}) did not die within {KILL_REAP_TIMEOUT:?} of \
+                         SIGKILL (starved by a real-time stage on its core?); ending the run",
+                        s.kind.name(),
+                        s.pid
+                    );
                 }
                 on_death(ctx, mon, s)?;
             }
@@ -1037,9 +1062,13 @@ fn shutdown(stages: &mut [Stage], mon: &mut Monitor) {
                             "warning: {} did not stop in {STOP_GRACE:?}; killing it",
                             s.kind.name()
                         );
-                        signal(s.pid, libc::SIGKILL);
-                        if let Some(mut c) = s.child.take() {
-                            s.exit = c.wait().ok();
+                        if !s.kill_and_reap() {
+                            eprintln!(
+                                "warning: {} (pid {}) was not reaped within {KILL_REAP_TIMEOUT:?} \
+                                 of SIGKILL",
+                                s.kind.name(),
+                                s.pid
+                            );
                         }
                     }
                 }
