@@ -173,3 +173,57 @@ proptest! {
         }
     }
 }
+
+/// Hostile `--set` values and `--duration` that used to be accepted and then
+/// aborted an allocation, locked gigabytes, panicked a stage or wedged the
+/// machine: `beliefbus run` refuses each at validation — exit 2, one line
+/// naming the key — before any stage starts (the hard limits of
+/// `src/config/limits.rs`).
+#[test]
+fn hostile_overrides_exit_2_at_validation_naming_the_key() {
+    for (args, key) in [
+        (
+            &["--set", "filter.pf.particles=1e12"][..],
+            "filter.pf.particles",
+        ),
+        (
+            &["--set", "filter.pf.particles=1000000000000"],
+            "filter.pf.particles",
+        ),
+        (&["--set", "refine.knn_c=1e9"], "refine.knn_c"),
+        (&["--set", "refine.max_states=1000000"], "refine.max_states"),
+        (&["--set", "run.duration_s=1e300"], "run.duration_s"),
+        (&["--duration", "1e300"], "--duration"),
+        (
+            &["--set", "filter.chain.prepare_budget_us=1e300"],
+            "filter.chain.prepare_budget_us",
+        ),
+        (
+            &["--set", "plant.integration_dt=1e-12"],
+            "plant.integration_dt",
+        ),
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_beliefbus"))
+            .arg("run")
+            .args(args)
+            .current_dir(root())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.contains(key), "{args:?}: {err}");
+        // Nothing started: no stage was spawned.
+        assert!(!err.contains("supervisor: started"), "{args:?}: {err}");
+    }
+}
+
+#[test]
+fn the_shipped_configs_are_inside_the_hard_limits() {
+    for e in std::fs::read_dir(root().join("configs")).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "toml") {
+            config::load(&p, &[]).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+        }
+    }
+}

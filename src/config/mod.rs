@@ -19,6 +19,7 @@
 //! Every error is a [`ConfigError`]: one line naming the key and the
 //! problem; the binaries print it and exit with status 2.
 
+pub mod limits;
 pub mod load;
 pub mod reference;
 pub mod restart;

@@ -141,3 +141,82 @@ fn the_default_config_runs_the_implicit_controller_and_mppi_stays_selectable() {
     let e = err(text, &["control.implicit.bogus=1"]);
     assert_eq!(e.key, "control.implicit.bogus", "{e}");
 }
+
+/// Hostile `--set` values that used to be accepted and then aborted,
+/// wedged or exhausted the machine after the stages started: each is
+/// refused at validation, naming its key.
+#[test]
+fn values_that_size_memory_work_or_time_are_bounded() {
+    for (set, key) in [
+        ("filter.pf.particles=1000000000000", "filter.pf.particles"),
+        ("filter.pf.particles=1e12", "filter.pf.particles"),
+        ("filter.pf.max_dt=1e-12", "filter.pf.max_dt"),
+        ("filter.ekf.max_dt=1e-12", "filter.ekf.max_dt"),
+        ("refine.knn_c=1e9", "refine.knn_c"),
+        ("refine.max_states=1000000", "refine.max_states"),
+        ("run.duration_s=1e300", "run.duration_s"),
+        ("run.warmup_s=1e300", "run.warmup_s"),
+        ("run.stats_period_s=1e300", "run.stats_period_s"),
+        (
+            "filter.chain.prepare_budget_us=1e300",
+            "filter.chain.prepare_budget_us",
+        ),
+        ("filter.max_obs_age_us=1e300", "filter.max_obs_age_us"),
+        ("plant.integration_dt=1e-12", "plant.integration_dt"),
+        ("plant.sensor_rate_hz=1e12", "plant.sensor_rate_hz"),
+        ("control.mppi.samples=10000000000", "control.mppi.samples"),
+        (
+            "control.implicit.samples=100000000000",
+            "control.implicit.samples",
+        ),
+        (
+            "control.implicit.budget_us=1e300",
+            "control.implicit.budget_us",
+        ),
+        ("stages.filter.budget_us=1e300", "stages.filter.budget_us"),
+        (
+            "stages.filter.spin_us=100000000000",
+            "stages.filter.spin_us",
+        ),
+        (
+            "stages.filter.restart.heartbeat_timeout_ms=1e300",
+            "stages.filter.restart.heartbeat_timeout_ms",
+        ),
+        (
+            "stages.filter.restart.reset_after_s=1e300",
+            "stages.filter.restart.reset_after_s",
+        ),
+        ("refine.publish_period_ms=1e300", "refine.publish_period_ms"),
+    ] {
+        let e = err(BASE, &[set]);
+        assert_eq!(e.key, key, "{set}: {e}");
+        assert_eq!(e.to_string().lines().count(), 1, "{e}");
+    }
+}
+
+#[test]
+fn memory_limits_follow_the_machine() {
+    use super::limits::{chain_bytes, memory_cap};
+    let cap = memory_cap() as f64;
+    // 10⁷ particles of the 4-state ship take (2·4 + 4)·8 B each = 960 MB:
+    // refused exactly when that is above this machine's share.
+    let r = load_str(BASE, &["filter.pf.particles=10000000".into()]);
+    assert_eq!(r.is_err(), 1e7 * 96.0 > cap, "{r:?}");
+    // 200 000 chain states at the default k-NN constant: refused where the
+    // snapshot channel's shared memory would not fit.
+    let r = load_str(BASE, &["refine.max_states=200000".into()]);
+    assert_eq!(r.is_err(), chain_bytes(4, 200_000, 1.5) > cap, "{r:?}");
+    // What the shipped configs use is far inside.
+    assert!(chain_bytes(4, 4000, 1.5) < 64e6);
+}
+
+#[test]
+fn durations_at_the_limit_are_valid_durations() {
+    use super::limits::{seconds, MAX_DURATION_S};
+    assert!(seconds("k", MAX_DURATION_S, MAX_DURATION_S).is_ok());
+    for bad in [f64::NAN, f64::INFINITY, -1.0, 1e300] {
+        assert_eq!(seconds("k", bad, MAX_DURATION_S).unwrap_err().key, "k");
+    }
+    let c = load_str(BASE, &["run.duration_s=31536000".into()]).unwrap();
+    assert_eq!(c.run.duration_s, MAX_DURATION_S);
+}

@@ -54,6 +54,25 @@ impl RefineConfig {
 }
 
 impl PipelineConfig {
+    /// The controls an actuator of this run may apply: the model's control
+    /// dimension, inside the controller's limits (`control.mppi.u_min` /
+    /// `u_max`, ±`control.implicit.u_max`; any finite value without a
+    /// controller).
+    pub fn control_limits(&self) -> Result<crate::ipc::ControlLimits, ConfigError> {
+        use crate::ipc::ControlLimits;
+        let dim = self.model()?.dims().control;
+        Ok(match self.control.backend {
+            ControlBackend::Mppi => {
+                ControlLimits::new(&self.control.mppi.u_min, &self.control.mppi.u_max)
+            }
+            ControlBackend::Implicit => {
+                let m = self.control.implicit.u_max;
+                ControlLimits::new(&vec![-m; dim], &vec![m; dim])
+            }
+            ControlBackend::None => ControlLimits::finite(dim),
+        })
+    }
+
     /// Where the stages meet: `run.prefix` and `run.instance`.
     pub fn bus(&self) -> crate::ipc::BusConfig {
         crate::ipc::BusConfig {
@@ -189,6 +208,16 @@ impl PipelineConfig {
 
         let p = &self.plant;
         positive("plant.sensor_rate_hz", p.sensor_rate_hz)?;
+        if p.sensor_rate_hz > limits::MAX_SENSOR_RATE_HZ {
+            return Err(ConfigError::new(
+                "plant.sensor_rate_hz",
+                format!(
+                    "must be at most {} Hz, got {}",
+                    limits::MAX_SENSOR_RATE_HZ,
+                    p.sensor_rate_hz
+                ),
+            ));
+        }
         positive("plant.integration_dt", p.integration_dt)?;
         if p.integration_dt > self.sample_dt() {
             return Err(ConfigError::new(
@@ -325,7 +354,7 @@ impl PipelineConfig {
                 .validate()
                 .map_err(|(k, p)| ConfigError::new(format!("{key}.restart.{k}"), p))?;
         }
-        Ok(())
+        self.validate_limits()
     }
 
     fn validate_control(&self, model: &DynModel) -> Result<(), ConfigError> {

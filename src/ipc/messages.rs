@@ -16,7 +16,7 @@
 //! | `belief`  | [`Belief`]       | `beliefbus.Belief.v1`         |
 //! | `control` | [`Control`]      | `beliefbus.Control.v1`        |
 //! | `truth`   | [`Truth`]        | `beliefbus.Truth.v1`          |
-//! | `stats`   | [`StageStats`]   | `beliefbus.StageStats.v2`     |
+//! | `stats`   | [`StageStats`]   | `beliefbus.StageStats.v3`     |
 
 use crate::belief::Gaussian;
 use crate::{MAX_CONTROL, MAX_OBS, MAX_STATE};
@@ -439,7 +439,7 @@ pub struct HopStats {
 /// Hop slots in one [`StageStats`].
 pub const STATS_HOPS: usize = 4;
 /// Rejection-reason slots in one [`StageStats`].
-pub const STATS_REASONS: usize = 8;
+pub const STATS_REASONS: usize = 12;
 /// Drop-reason slots in one [`StageStats`] (`crate::stage::DropReason`).
 pub const STATS_DROP_REASONS: usize = 4;
 

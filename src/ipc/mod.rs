@@ -20,17 +20,21 @@
 //!   before blocking, for the latency-critical path.
 
 pub mod cleanup;
+pub mod control_check;
 pub mod messages;
 mod ports;
 pub mod sensor_api;
 mod signals;
 mod slice;
+pub mod trust;
 mod wait;
 
+pub use control_check::{ControlLimits, ControlReject};
 pub use messages::*;
-pub use ports::{Message, Publisher, Qos, Subscriber};
+pub use ports::{Message, Origin, Publisher, Qos, Subscriber};
 pub use signals::install_stop_handler;
 pub use slice::{SliceElem, SlicePublisher, SliceQos, SliceSample, SliceSubscriber};
+pub use trust::PublisherGate;
 pub use wait::{run_loop, Wake, WakeMode, Wakeable, STOP_POLL};
 
 use iceoryx2::prelude::*;

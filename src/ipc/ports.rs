@@ -274,9 +274,27 @@ impl<M: Message> Publisher<M> {
     }
 }
 
+/// Who published a received sample, as iceoryx2 records it: the
+/// publishing port, its node, and the process that created that node.
+///
+/// The port id is the subscriber's own record of the connection the sample
+/// came through; the node id and pid are in the sample's header, written by
+/// the publisher's iceoryx2 library (a process that writes the shared
+/// memory by hand instead of through iceoryx2 can forge them; see
+/// `docs/security.md`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Origin {
+    pub publisher: u128,
+    pub node: u128,
+    /// The node's process (0: unknown).
+    pub pid: i32,
+}
+
 /// Receives `M` from its channel.
 pub struct Subscriber<M: Message> {
     subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, M, ()>,
+    /// The service, to see which publishers are connected.
+    factory: iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, M, ()>,
     pub(super) listener: Option<Listener<ipc::Service>>,
     service: String,
     /// One sample taken off the queue by a spinning loop's poll
@@ -314,7 +332,8 @@ impl<M: Message> Subscriber<M> {
             reason: e,
         };
         let buffer = buffer.clamp(1, M::QOS.max_buffer);
-        let subscriber = pubsub::<M>(node, &sn)?
+        let factory = pubsub::<M>(node, &sn)?;
+        let subscriber = factory
             .subscriber_builder()
             .buffer_size(buffer)
             .create()
@@ -331,6 +350,7 @@ impl<M: Message> Subscriber<M> {
         };
         Ok(Self {
             subscriber,
+            factory,
             listener,
             service: name.to_string(),
             stash: std::cell::RefCell::new(None),
@@ -355,6 +375,35 @@ impl<M: Message> Subscriber<M> {
     /// The oldest unread message, copied out.
     pub fn receive(&self) -> Result<Option<M>, IpcError> {
         Ok(self.next_sample()?.map(|s| *s.payload()))
+    }
+
+    /// The oldest unread message, copied out, with who published it.
+    pub fn receive_from(&self) -> Result<Option<(M, Origin)>, IpcError> {
+        use iceoryx2::service::header::payload_header::PayloadHeader;
+        Ok(self.next_sample()?.map(|s| {
+            let node = s.header().node_id();
+            let origin = Origin {
+                publisher: s.origin().value(),
+                node: node.value(),
+                pid: node.pid::<ipc::Service>().map(|p| p.value()).unwrap_or(0),
+            };
+            (*s.payload(), origin)
+        }))
+    }
+
+    /// Whether the publisher `publisher` ([`Origin::publisher`]) is still
+    /// connected to the service.
+    pub fn publisher_connected(&self, publisher: u128) -> bool {
+        let mut found = false;
+        self.factory.dynamic_config().list_publishers(|d| {
+            if d.publisher_id.value() == publisher {
+                found = true;
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        found
     }
 
     /// Read the oldest unread message in place (no copy) with `f`.

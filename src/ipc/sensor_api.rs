@@ -36,9 +36,11 @@
 //! # }
 //! ```
 
+use super::control_check::ControlLimits;
 use super::messages::{Control, SensorSample, SENSOR_MAX_DIM};
 use super::ports::{Message, Publisher, Subscriber};
 use super::{Bus, BusConfig, IpcError};
+use crate::MAX_CONTROL;
 use iceoryx2::prelude::*;
 use std::time::{Duration, Instant};
 
@@ -347,6 +349,8 @@ fn check_values(values: &[f64], std: Option<&[f64]>) -> Result<(), SensorError> 
 pub struct ControlSubscriber {
     subscriber: Subscriber<Control>,
     received: u64,
+    rejected: u64,
+    limits: Option<ControlLimits>,
     bus: Bus,
 }
 
@@ -377,8 +381,35 @@ impl ControlSubscriber {
         Ok(Self {
             subscriber,
             received: 0,
+            rejected: 0,
+            limits: None,
             bus,
         })
+    }
+
+    /// Accept only controls inside `limits` (the run's control dimension
+    /// and the controller's limits, `PipelineConfig::control_limits`).
+    /// Without it a control is accepted when its `dim` is at most
+    /// [`MAX_CONTROL`] and its values are finite.
+    pub fn with_limits(mut self, limits: ControlLimits) -> Self {
+        self.limits = Some(limits);
+        self
+    }
+
+    /// Controls refused (wrong dimension, non-finite, outside the limits):
+    /// anything that can open the control service can publish on it.
+    pub fn rejected(&self) -> u64 {
+        self.rejected
+    }
+
+    fn acceptable(&self, c: &Control) -> bool {
+        match &self.limits {
+            Some(l) => l.check(c).is_ok(),
+            None => {
+                let n = c.dim as usize;
+                n <= MAX_CONTROL && ControlLimits::finite(n).check(c).is_ok()
+            }
+        }
     }
 
     /// The bus (prefix, instance) it listens on.
@@ -391,12 +422,21 @@ impl ControlSubscriber {
         self.received
     }
 
-    /// The newest control not yet read, without blocking.
+    /// The newest acceptable control not yet read, without blocking
+    /// (refused ones are counted in [`Self::rejected`] and skipped: the
+    /// actuator keeps applying the last good one).
     pub fn try_latest(&mut self) -> Result<Option<Control>, IpcError> {
         self.subscriber.drain_wakeups();
-        let (c, _) = self.subscriber.latest()?;
-        self.received += c.is_some() as u64;
-        Ok(c)
+        let mut last = None;
+        while let Some(c) = self.subscriber.receive()? {
+            if self.acceptable(&c) {
+                last = Some(c);
+            } else {
+                self.rejected += 1;
+            }
+        }
+        self.received += last.is_some() as u64;
+        Ok(last)
     }
 
     /// Block until a new control arrives (returned) or `timeout` passes

@@ -257,6 +257,9 @@ fn spawn_child(
     if let Some(r) = resume {
         cmd.arg("--resume").arg(r);
     }
+    // The stages admit samples on internal channels only from processes
+    // whose parent is this launcher (ipc::trust).
+    cmd.env(ipc::trust::LAUNCHER_PID_ENV, std::process::id().to_string());
     // Own process group: a terminal's Ctrl-C reaches only the launcher, which
     // stops the stages in order. Parent-death signal: if the launcher dies,
     // the stages stop too (and release their shared memory).
@@ -277,7 +280,28 @@ fn signal(pid: u32, sig: libc::c_int) {
     unsafe { libc::kill(pid as libc::pid_t, sig) };
 }
 
+/// How long the supervisor waits for a SIGKILLed stage to be reaped before
+/// it gives up on it (a stage starved of CPU by a runaway SCHED_FIFO stage
+/// on its core cannot even die): it never blocks on a child.
+const KILL_REAP_TIMEOUT: Duration = Duration::from_secs(2);
+
 impl Stage {
+    /// SIGKILL and reap within [`KILL_REAP_TIMEOUT`]; false if it could not
+    /// be reaped in that time (the child stays registered, unreaped).
+    fn kill_and_reap(&mut self) -> bool {
+        signal(self.pid, libc::SIGKILL);
+        let deadline = Instant::now() + KILL_REAP_TIMEOUT;
+        loop {
+            if self.poll_exit() {
+                return true;
+            }
+            if Instant::now() > deadline {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
     /// Reap if exited; true if it has.
     fn poll_exit(&mut self) -> bool {
         if self.exit.is_some() {
@@ -309,6 +333,9 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
             }
             .into());
         }
+        // A duration the supervisor can add to an Instant (never a panic
+        // after the stages started).
+        config::limits::seconds("--duration", d, config::limits::MAX_DURATION_S)?;
         cfg.run.duration_s = d;
     }
     let swept = cleanup::sweep_stale_runs();
@@ -394,6 +421,19 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
         .collect();
     if let Some(e) = failure {
         return Err(e.into());
+    }
+    // The filter counted more observations than ingest published: someone
+    // else published on the observation channel. The run's figures cannot
+    // be trusted, so it fails.
+    if let Some((published, counted, unaccounted)) = input.observation_books() {
+        if unaccounted < 0 {
+            return Err(anyhow::anyhow!(
+                "observation accounting went negative: the filter counted {counted} \
+                 observations but ingest published {published} (a foreign publisher on \
+                 the observation channel?)"
+            )
+            .into());
+        }
     }
     if !failed.is_empty() {
         return Err(anyhow::anyhow!("stage(s) did not stop cleanly: {}", failed.join(", ")).into());
@@ -657,6 +697,7 @@ fn on_death(ctx: &mut Ctx, mon: &mut Monitor, s: &mut Stage) -> Result<()> {
                 GiveUpReason::PolicyNever => "its restart policy is \"never\"",
                 GiveUpReason::CleanExit => "it exited cleanly (restart.on = \"failure\")",
                 GiveUpReason::TooManyRestarts => "restart.max_restarts is used up",
+                GiveUpReason::Fatal => "it reported an unrecoverable state (its message above)",
             };
             bail!(
                 "the {} stage exited unexpectedly ({cause}); not restarted: {why}",
@@ -802,9 +843,13 @@ fn drive(
                     limit.as_secs_f64() * 1e3
                 );
                 s.hung = true;
-                signal(s.pid, libc::SIGKILL);
-                if let Some(mut c) = s.child.take() {
-                    s.exit = c.wait().ok();
+                if !s.kill_and_reap() {
+                    bail!(
+                        "the {} stage (pid {}) did not die within {KILL_REAP_TIMEOUT:?} of \
+                         SIGKILL (starved by a real-time stage on its core?); ending the run",
+                        s.kind.name(),
+                        s.pid
+                    );
                 }
                 on_death(ctx, mon, s)?;
             }
@@ -1017,9 +1062,13 @@ fn shutdown(stages: &mut [Stage], mon: &mut Monitor) {
                             "warning: {} did not stop in {STOP_GRACE:?}; killing it",
                             s.kind.name()
                         );
-                        signal(s.pid, libc::SIGKILL);
-                        if let Some(mut c) = s.child.take() {
-                            s.exit = c.wait().ok();
+                        if !s.kill_and_reap() {
+                            eprintln!(
+                                "warning: {} (pid {}) was not reaped within {KILL_REAP_TIMEOUT:?} \
+                                 of SIGKILL",
+                                s.kind.name(),
+                                s.pid
+                            );
                         }
                     }
                 }

@@ -101,6 +101,10 @@ fn reasons(kind: StageKind, r: &[u64]) -> Value {
         StageKind::Ingest => ingest::Reason::ALL.iter().map(|r| r.name()).collect(),
         StageKind::Filter => filter::Reason::ALL.iter().map(|r| r.name()).collect(),
         StageKind::Control => control::Reason::ALL.iter().map(|r| r.name()).collect(),
+        StageKind::Plant => crate::stage::plant::Reason::ALL
+            .iter()
+            .map(|r| r.name())
+            .collect(),
         _ => Vec::new(),
     };
     let mut m = Map::new();
@@ -298,7 +302,10 @@ impl ReportInput {
     pub fn observation_books(&self) -> Option<(u64, u64, i64)> {
         let i = self.stats(StageKind::Ingest)?;
         let f = self.stats(StageKind::Filter)?;
-        let counted = f.processed + f.dropped + f.rejected;
+        // Observations the filter refused as not ingest's were never
+        // published by ingest: outside the books.
+        let foreign = f.rejected_by_reason[crate::stage::filter::Reason::Foreign as usize];
+        let counted = f.processed + f.dropped + f.rejected - foreign.min(f.rejected);
         Some((i.processed, counted, i.processed as i64 - counted as i64))
     }
 

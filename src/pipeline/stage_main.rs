@@ -123,7 +123,7 @@ where
         Ok(_) => 0,
         Err(e) => {
             eprintln!("{name}: {e}");
-            1
+            e.exit_code()
         }
     };
     // Started by hand (no launcher owns the prefix): the last stage out

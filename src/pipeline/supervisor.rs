@@ -77,6 +77,9 @@ pub enum GiveUpReason {
     CleanExit,
     /// `max_restarts` used up.
     TooManyRestarts,
+    /// The stage exited with [`crate::stage::FATAL_EXIT`]: restarting it
+    /// would resume the same broken state.
+    Fatal,
 }
 
 /// Restart bookkeeping of one stage.
@@ -91,6 +94,9 @@ pub struct RestartState {
 impl RestartState {
     /// Decide about a death of an incarnation that lived `lived`.
     pub fn decide(&mut self, p: &RestartPolicy, death: Death, lived: Duration) -> Decision {
+        if death == Death::Exit(crate::stage::FATAL_EXIT) {
+            return Decision::GiveUp(GiveUpReason::Fatal);
+        }
         match p.on {
             RestartOn::Never => return Decision::GiveUp(GiveUpReason::PolicyNever),
             RestartOn::Failure if death.is_clean() => {
@@ -225,6 +231,16 @@ mod tests {
         assert_eq!(
             c.decide(&capped, Death::Signal(9), t),
             Decision::GiveUp(GiveUpReason::TooManyRestarts)
+        );
+        // A stage that reports an unrecoverable state (the plant's state
+        // went non-finite) is never restarted into it, whatever the policy.
+        let always = RestartPolicy {
+            on: RestartOn::Always,
+            ..RestartPolicy::default()
+        };
+        assert_eq!(
+            RestartState::default().decide(&always, Death::Exit(crate::stage::FATAL_EXIT), t),
+            Decision::GiveUp(GiveUpReason::Fatal)
         );
     }
 

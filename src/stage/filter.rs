@@ -39,8 +39,8 @@ use crate::filter::pf::Pf;
 use crate::filter::ukf::Ukf;
 use crate::filter::{BayesFilter, FilterError};
 use crate::ipc::{
-    belief_status, run_loop, Belief, Bus, Control, Hop, Observation, Publisher, SliceSample,
-    SliceSubscriber, StageKind, StageStats, Subscriber, Wake, Wakeable,
+    belief_status, run_loop, Belief, Bus, Control, Hop, Observation, Publisher, PublisherGate,
+    SliceSample, SliceSubscriber, StageKind, StageStats, Subscriber, Wake, Wakeable,
 };
 use crate::model::{Measurement, ObsMask, SdeModel};
 use crate::rt::Clock;
@@ -64,11 +64,15 @@ pub enum Reason {
     /// A measurement time far off the stage's clock (a rogue publisher on
     /// the internal channel; see [`time_out_of_range`]).
     TimeRange = 6,
+    /// Published by a process that is not the run's ingest
+    /// ([`crate::ipc::PublisherGate`]). Not part of the observation books:
+    /// ingest never published it.
+    Foreign = 7,
 }
 
 impl Reason {
     /// Every reason, in index order.
-    pub const ALL: [Reason; 7] = [
+    pub const ALL: [Reason; 8] = [
         Reason::TimeBackwards,
         Reason::Dimension,
         Reason::NonFinite,
@@ -76,6 +80,7 @@ impl Reason {
         Reason::Numerical,
         Reason::Snapshot,
         Reason::TimeRange,
+        Reason::Foreign,
     ];
 
     /// Report name.
@@ -88,6 +93,7 @@ impl Reason {
             Reason::Numerical => "numerical",
             Reason::Snapshot => "snapshot",
             Reason::TimeRange => "time_out_of_range",
+            Reason::Foreign => "foreign_publisher",
         }
     }
 
@@ -563,6 +569,11 @@ pub fn run_with(
     let mut err = None;
     ports.stats.publish(&m, clock.now_ns(), false)?;
     let tick = Duration::from_secs_f64(cfg.run.stats_period_s.min(0.1));
+    // Observations only from the run's ingest, controls only from its
+    // controller and inside its limits: anyone can open these services.
+    let mut obs_gate = PublisherGate::from_env();
+    let mut control_gate = PublisherGate::from_env();
+    let limits = cfg.control_limits()?;
 
     let obs_sub = &ports.obs;
     let control = &ports.control;
@@ -576,8 +587,12 @@ pub fn run_with(
     run_loop(&inputs, rt.wake_mode(), tick, stop, |w| {
         guarded(&mut err, || {
             if w == Wake::Data {
-                while let Some(o) = obs_sub.receive()? {
+                while let Some((o, origin)) = obs_sub.receive_from()? {
                     let t_in = clock.now_ns();
+                    if !obs_gate.admit(obs_sub, &origin) {
+                        m.reject(Reason::Foreign as usize);
+                        continue;
+                    }
                     // An endless backlog must not starve the report (the
                     // supervisor's heartbeat).
                     stats.tick(&m, t_in)?;
@@ -600,9 +615,11 @@ pub fn run_with(
                         m.reject(Reason::TimeBackwards as usize);
                         continue;
                     }
-                    if let (Some(c), _) = control.latest()? {
-                        let n = (c.dim as usize).min(dims.control);
-                        u[..n].copy_from_slice(&c.u[..n]);
+                    while let Some((c, origin)) = control.receive_from()? {
+                        if control_gate.admit(control, &origin) && limits.check(&c).is_ok() {
+                            let n = (c.dim as usize).min(dims.control);
+                            u[..n].copy_from_slice(&c.u[..n]);
+                        }
                     }
                     let t = secs_since(epoch_ns, o.header.t_valid_ns);
                     if let Err(e) = filter.predict(t, &u[..dims.control]) {

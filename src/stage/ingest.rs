@@ -50,11 +50,16 @@ pub enum Reason {
     Rate = 6,
     /// Invalid σ, or a measurement time of 0 or in the future.
     Invalid = 7,
+    /// Another publisher than the one the channel is bound to.
+    ForeignPublisher = 8,
+    /// A sequence number further ahead of the channel's last one than its
+    /// rate allows since then.
+    SeqJump = 9,
 }
 
 impl Reason {
     /// Every reason, in index order.
-    pub const ALL: [Reason; 8] = [
+    pub const ALL: [Reason; 10] = [
         Reason::Dimension,
         Reason::NonFinite,
         Reason::TimeBackwards,
@@ -63,6 +68,8 @@ impl Reason {
         Reason::UnknownChannel,
         Reason::Rate,
         Reason::Invalid,
+        Reason::ForeignPublisher,
+        Reason::SeqJump,
     ];
 
     /// Report name (`stages.ingest.rejected_by_reason.<name>`).
@@ -76,12 +83,17 @@ impl Reason {
             Reason::UnknownChannel => "unknown_channel",
             Reason::Rate => "rate",
             Reason::Invalid => "invalid",
+            Reason::ForeignPublisher => "foreign_publisher",
+            Reason::SeqJump => "seq_jump",
         }
     }
 }
 
 /// Burst the rate limiter tolerates (samples).
 pub const RATE_BURST: f64 = 3.0;
+/// Sequence numbers a channel may skip beyond twice what its `max_rate_hz`
+/// allows over the measurement time since its last accepted sample.
+pub const SEQ_JUMP_SLACK: f64 = 1024.0;
 /// Observations the reorder window holds at most.
 const REORDER_CAPACITY: usize = 256;
 /// At most one log line per rejection reason per second.
@@ -109,6 +121,9 @@ impl IngestPorts {
 struct Channel {
     cfg: ChannelConfig,
     mask: u32,
+    /// The publisher (iceoryx2 port id) the channel is bound to: the first
+    /// whose sample was accepted; another is bound only once it is gone.
+    owner: Option<u128>,
     /// Highest trusted sequence number seen (accepted, or rejected after
     /// the duplicate check): the numbers skipped below it were lost.
     seen: Option<u64>,
@@ -138,6 +153,7 @@ impl Validator {
             .map(|c| Channel {
                 mask: c.components.iter().fold(0u32, |m, &k| m | (1 << k)),
                 cfg: c,
+                owner: None,
                 seen: None,
                 last_seq: None,
                 last_t: 0,
@@ -163,9 +179,35 @@ impl Validator {
         now_ns: u64,
         obs: &mut Observation,
     ) -> Result<u64, Reason> {
+        self.check_from(s, 0, &|_| true, now_ns, obs)
+    }
+
+    /// [`Self::check`] for a sample of publisher `publisher`
+    /// ([`crate::ipc::Origin::publisher`]); `connected(p)` tells whether
+    /// publisher `p` is still connected. Each channel is bound to the
+    /// first publisher whose sample it accepts: samples of any other are
+    /// rejected as `foreign_publisher` while that one stays connected; when
+    /// it is gone the next publisher is bound and the channel's numbering
+    /// starts afresh with it (a restarted sensor).
+    pub fn check_from(
+        &mut self,
+        s: &SensorSample,
+        publisher: u128,
+        connected: &dyn Fn(u128) -> bool,
+        now_ns: u64,
+        obs: &mut Observation,
+    ) -> Result<u64, Reason> {
         let Some(ch) = self.channels.iter_mut().find(|c| c.cfg.id == s.channel) else {
             return Err(Reason::UnknownChannel);
         };
+        if let Some(owner) = ch.owner.filter(|&o| o != publisher) {
+            if connected(owner) {
+                return Err(Reason::ForeignPublisher);
+            }
+            ch.owner = None;
+            ch.last_seq = None;
+            ch.seen = None;
+        }
         let n = ch.cfg.components.len();
         if s.dim as usize != n || n > SENSOR_MAX_DIM {
             return Err(Reason::Dimension);
@@ -185,6 +227,17 @@ impl Validator {
         }
         if ch.last_seq.is_some_and(|l| s.seq <= l) {
             return Err(Reason::Duplicate);
+        }
+        // A jump further than the channel's rate allows since its last
+        // accepted sample is refused on its own: accepted, it would make
+        // every later genuine sample a `duplicate` (one sequence number of
+        // 2⁶² did that to 375 of them).
+        if let Some(l) = ch.last_seq {
+            let dt = s.t_meas_ns.saturating_sub(ch.last_t) as f64 * 1e-9;
+            let allowed = 2.0 * dt * ch.cfg.max_rate_hz + SEQ_JUMP_SLACK;
+            if (s.seq - l) as f64 > allowed {
+                return Err(Reason::SeqJump);
+            }
         }
         // From here the sequence number is trusted: numbers skipped before
         // it were lost in transport (`dropped`), whether or not this sample
@@ -219,6 +272,7 @@ impl Validator {
             return Err(Reason::Rate);
         }
         ch.tokens = tokens - 1.0;
+        ch.owner = Some(publisher);
         ch.last_seq = Some(s.seq);
         ch.last_t = s.t_meas_ns;
 
@@ -338,9 +392,10 @@ pub fn run(
     run_loop(&[sensor], rt.wake_mode(), tick, stop, |w| {
         guarded(&mut err, || {
             if w == Wake::Data {
-                while let Some(s) = sensor.receive()? {
+                while let Some((s, origin)) = sensor.receive_from()? {
                     let t_in = clock.now_ns();
-                    match v.check(&s, t_in, &mut o) {
+                    let connected = |p| sensor.publisher_connected(p);
+                    match v.check_from(&s, origin.publisher, &connected, t_in, &mut o) {
                         Ok(_) => {
                             o.trace.t_ingest_in_ns = t_in;
                             if merge.push(&o, t_in).is_err() {

@@ -41,6 +41,25 @@ pub enum StageError {
     /// The backend could not be built from the config.
     #[error("cannot build {what}: {reason}")]
     Build { what: &'static str, reason: String },
+    /// The run cannot go on (e.g. the simulated plant's state became
+    /// non-finite): the stage exits with [`FATAL_EXIT`] and the supervisor
+    /// ends the run instead of restarting it into the same state.
+    #[error("{0}")]
+    Fatal(String),
+}
+
+/// Exit status of a stage that hit a [`StageError::Fatal`] (sysexits'
+/// EX_SOFTWARE; 1 stays "failed, restart me").
+pub const FATAL_EXIT: i32 = 70;
+
+impl StageError {
+    /// The process exit status for this error.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            StageError::Fatal(_) => FATAL_EXIT,
+            _ => 1,
+        }
+    }
 }
 
 /// Who a stage process is, for its reports.

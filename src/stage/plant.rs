@@ -12,10 +12,14 @@
 //! the control in force. (The plant reads them at its tick, so it never needs
 //! to be woken by the controller.)
 
+use super::reorder::RejectLog;
 use super::resume::Resume;
 use super::{stopped, DropReason, Metrics, StageError, StageIdentity, StatsPort};
 use crate::config::PipelineConfig;
-use crate::ipc::{Bus, Control, Publisher, SensorSample, StageKind, StageStats, Subscriber, Truth};
+use crate::ipc::{
+    Bus, Control, ControlReject, Publisher, PublisherGate, SensorSample, StageKind, StageStats,
+    Subscriber, Truth,
+};
 use crate::model::SdeModel;
 use crate::rng;
 use crate::rt::Clock;
@@ -23,6 +27,52 @@ use crate::{MAX_CONTROL, MAX_OBS};
 use std::sync::atomic::AtomicBool;
 
 pub use crate::scenario::PLANT_STREAM;
+
+/// Why the plant refused a control (index into `rejected_by_reason`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(usize)]
+pub enum Reason {
+    /// `dim` is not the model's control dimension.
+    Dimension = 0,
+    /// NaN or infinite components.
+    NonFinite = 1,
+    /// Outside the controller's limits.
+    Limit = 2,
+    /// Published by a process that is not the run's controller
+    /// ([`crate::ipc::PublisherGate`]).
+    Foreign = 3,
+}
+
+impl Reason {
+    /// Every reason, in index order.
+    pub const ALL: [Reason; 4] = [
+        Reason::Dimension,
+        Reason::NonFinite,
+        Reason::Limit,
+        Reason::Foreign,
+    ];
+
+    /// Report name (`stages.plant.rejected_by_reason.<name>`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Reason::Dimension => "control_dimension",
+            Reason::NonFinite => "control_non_finite",
+            Reason::Limit => "control_limit",
+            Reason::Foreign => "foreign_publisher",
+        }
+    }
+
+    fn of(r: ControlReject) -> Self {
+        match r {
+            ControlReject::Dimension => Reason::Dimension,
+            ControlReject::NonFinite => Reason::NonFinite,
+            ControlReject::Limit => Reason::Limit,
+        }
+    }
+}
+
+/// At most one log line per rejection reason per second.
+const REJECT_LOG_PERIOD_NS: u64 = 1_000_000_000;
 /// Controls buffered between two ticks.
 const CONTROL_BUFFER: usize = 16;
 /// A plant this many periods late skips ahead instead of catching up
@@ -106,6 +156,9 @@ pub fn run_resumed(
         },
         cfg.plant.integration_dt,
     );
+    let limits = cfg.control_limits()?;
+    let mut gate = PublisherGate::from_env();
+    let mut log = RejectLog::new(Reason::ALL.len(), REJECT_LOG_PERIOD_NS);
     let period_ns = (1e9 / cfg.plant.sensor_rate_hz).round().max(1.0) as u64;
     let mut pending = [Control::default(); CONTROL_BUFFER];
     let mut goal: Option<[f64; 2]> = None;
@@ -144,14 +197,42 @@ pub fn run_resumed(
         let t_wake = clock.now_ns();
 
         // Controls published up to t_k, in publish order, each from its
-        // publish time (zero-order hold).
+        // publish time (zero-order hold). Anyone who can open the control
+        // service can publish on it: a control of the wrong dimension,
+        // non-finite or outside the controller's limits is counted and
+        // ignored, and the last good one stays in force.
         let mut n = 0;
-        while n < CONTROL_BUFFER {
-            let Some(c) = ports.control.receive()? else {
+        for _ in 0..CONTROL_BUFFER {
+            let Some((c, origin)) = ports.control.receive_from()? else {
                 break;
             };
-            pending[n] = c;
-            n += 1;
+            let verdict = if gate.admit(&ports.control, &origin) {
+                limits.check(&c).map_err(Reason::of)
+            } else {
+                Err(Reason::Foreign)
+            };
+            match verdict {
+                Ok(()) => {
+                    pending[n] = c;
+                    n += 1;
+                }
+                Err(r) => {
+                    m.reject(r as usize);
+                    if let Some(more) = log.note(r as usize, t_wake) {
+                        eprintln!(
+                            "beliefbus-plant: rejected control ({}) seq {} dim {}{}",
+                            r.name(),
+                            c.header.seq,
+                            c.dim,
+                            if more > 0 {
+                                format!(" (+{more} more since the last line)")
+                            } else {
+                                String::new()
+                            }
+                        );
+                    }
+                }
+            }
         }
         m.controls_received += n as u64;
         let ctl = &mut pending[..n];
@@ -171,6 +252,18 @@ pub fn run_resumed(
             sim.advance((t_k - t) as f64 * 1e-9);
         }
         t_prev = t_k;
+        // Controls are checked, so this takes a model that blows up under
+        // admissible inputs (or a bug): the truth is gone, and a restart
+        // would resume from the same diverged trajectory. End the run.
+        if let Some(i) = sim.state().iter().position(|v| !v.is_finite()) {
+            let _ = ports.stats.publish(&m, clock.now_ns(), true);
+            return Err(StageError::Fatal(format!(
+                "the plant state became non-finite (component {i} = {}) at sample {}; \
+                 the run cannot continue",
+                sim.state()[i],
+                seq0 + k
+            )));
+        }
 
         sim.measure(&mut y[..dims.obs]);
         sample.seq = seq0 + k;

@@ -159,6 +159,85 @@ fn validator_rejects_each_reason_and_accepts_good_samples() {
     );
 }
 
+/// The finding: one sample with sequence number 2⁶² made ingest reject
+/// every later genuine sample as `duplicate`. Now it is rejected on its own
+/// (`seq_jump`) and the genuine ones after it are all accepted; a genuine
+/// gap within what the rate allows is still accepted (and counted lost).
+#[test]
+fn a_huge_sequence_jump_is_rejected_and_does_not_poison_later_samples() {
+    use ingest::{Reason, Validator};
+    let cfg = test_config(&[]);
+    let mut v = Validator::new(&cfg).unwrap();
+    let mut o = Observation::default();
+    let ms = 1_000_000u64;
+    let now = 10_000_000_000u64;
+    let t = |k: u64| now - 500 * ms + 10 * ms * k;
+    assert!(v
+        .check(&sample(0, 0, t(0), &[5.0, 0.1]), t(0), &mut o)
+        .is_ok());
+    assert_eq!(
+        v.check(&sample(0, 1 << 62, t(1), &[5.0, 0.1]), t(1), &mut o),
+        Err(Reason::SeqJump)
+    );
+    for k in 1..40 {
+        assert_eq!(
+            v.check(&sample(0, k, t(k), &[5.0, 0.1]), t(k), &mut o),
+            Ok(0),
+            "genuine sample {k}"
+        );
+    }
+    // 30 samples lost over 0.3 s: inside the rate's allowance.
+    assert_eq!(
+        v.check(&sample(0, 70, t(70), &[5.0, 0.1]), t(70), &mut o),
+        Ok(30)
+    );
+}
+
+/// A channel belongs to the first publisher whose sample it accepted:
+/// another publisher's samples (the finding: a rogue's σ = 1e-3 samples,
+/// weighted heavily) are rejected while the owner stays connected; once it
+/// is gone the next one is bound with fresh numbering (a restarted sensor).
+#[test]
+fn a_channel_is_bound_to_its_first_publisher_until_it_is_gone() {
+    use ingest::{Reason, Validator};
+    let cfg = test_config(&[]);
+    let mut v = Validator::new(&cfg).unwrap();
+    let mut o = Observation::default();
+    let ms = 1_000_000u64;
+    let now = 10_000_000_000u64;
+    let t = |k: u64| now - 500 * ms + 10 * ms * k;
+    let (genuine, rogue) = (11u128, 22u128);
+    let alive = |p: u128| p == genuine;
+    let s = |k: u64| sample(0, k, t(k), &[5.0, 0.1]);
+    assert!(v.check_from(&s(0), genuine, &alive, t(0), &mut o).is_ok());
+    let r = sample(0, 1, t(1), &[50.0, 0.1]).with_noise_std(&[1e-3, 1e-3]);
+    assert_eq!(
+        v.check_from(&r, rogue, &alive, t(1), &mut o),
+        Err(Reason::ForeignPublisher)
+    );
+    for k in 1..10 {
+        assert!(v.check_from(&s(k), genuine, &alive, t(k), &mut o).is_ok());
+    }
+    // The genuine publisher is gone: a restarted one (new port) numbering
+    // from 0 is bound.
+    let restarted = 33u128;
+    let alive = |p: u128| p == restarted;
+    let mut first = s(10);
+    first.seq = 0;
+    assert!(v
+        .check_from(&first, restarted, &alive, t(10), &mut o)
+        .is_ok());
+    assert_eq!(
+        v.check_from(&r, rogue, &alive, t(11), &mut o),
+        Err(Reason::ForeignPublisher)
+    );
+    let mut next = s(12);
+    next.seq = 1;
+    assert!(v
+        .check_from(&next, restarted, &alive, t(12), &mut o)
+        .is_ok());
+}
+
 #[test]
 fn a_rate_rejected_sample_never_breaks_the_time_checks() {
     use ingest::{Reason, Validator};
