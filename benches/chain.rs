@@ -1,4 +1,4 @@
-//! Criterion benchmarks of the Markov-chain library (issue 3): batch
+//! Criterion benchmarks of the Markov-chain library: batch
 //! construction (Alg. 2.1), incremental construction with reconnection
 //! (Alg. 2.3) measured per added state at a given chain size, and one chain
 //! filter step (predict over Δ = 0.01 s + update). k-NN Near rule,

@@ -1,4 +1,4 @@
-//! The anytime chain in the running pipeline (issue 4): the default scenario
+//! The anytime chain in the running pipeline: the default scenario
 //! filters on the refine stage's live chain snapshots, and losing refine
 //! (killed, or stopped) does not stop beliefs or controls: the stale-chain
 //! fallback (`stage::chain_guard`) takes over and the estimate holds.
@@ -58,8 +58,7 @@ fn a_run_on_the_live_chain_swaps_versions_and_beats_raw_measurements() {
         // in chain-closed-loop and by `run --set filter.backend=chain`), on
         // one incrementally grown chain: the moving frame needs a fresh
         // batch chain per version, which a CPU-starved refine (nice 19, a
-        // loaded test machine: 3 versions in 8 s) does not deliver — open
-        // work in issue 4.
+        // loaded test machine: 3 versions in 8 s) does not deliver.
         .args(["run", "--duration", "8", "--quiet"])
         .args(["--set", "filter.backend=\"chain\""])
         .args(["--set", "control.backend=\"none\""])

@@ -1,4 +1,4 @@
-//! Config parsing under hostile input (issue 8 item 6).
+//! Config parsing under hostile input.
 //!
 //! 1. The corpus `tests/data/bad-configs/*.toml`: invalid variants of
 //!    `configs/default.toml`, each naming the key it breaks on its first

@@ -1,5 +1,5 @@
 //! The default pipeline steers the ship with the implicit-sampling
-//! path-integral controller (issue 5): `beliefbus run` with no config runs
+//! path-integral controller: `beliefbus run` with no config runs
 //! `configs/default.toml`, whose controller must be `implicit` and must
 //! reach waypoints of the route, with the report's control section filled.
 //! MPPI stays selectable with `--set control.backend=mppi`.

@@ -1,4 +1,4 @@
-//! Fault injection on the real multi-process pipeline (issue 8): every stage
+//! Fault injection on the real multi-process pipeline: every stage
 //! killed with SIGKILL in turn, one stopped with SIGSTOP beyond its
 //! heartbeat deadline, a `--chaos` run, a stage whose policy forbids a
 //! restart. Each time the supervisor must notice, clean up, restart and the

@@ -1,4 +1,4 @@
-//! Message validation under arbitrary input (issue 8 item 6), by property
+//! Message validation under arbitrary input, by property
 //! tests (proptest): whatever bytes a sensor publisher puts into a
 //! `SensorSample`, ingest's validator never panics, accepts only samples
 //! that satisfy every rule of docs/sensor-abi.md, and a rejected sample

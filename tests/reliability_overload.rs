@@ -1,4 +1,4 @@
-//! Overload (issue 8 item 4): observations arrive ten times faster than the
+//! Overload: observations arrive ten times faster than the
 //! filter stage can process them. The documented policy
 //! (`filter.max_obs_age_us`, src/stage/filter.rs): an observation that
 //! waited longer than that while a newer one is queued is skipped and

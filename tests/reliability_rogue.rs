@@ -1,4 +1,4 @@
-//! A rogue publisher on the internal observation channel (issue 8): ingest
+//! A rogue publisher on the internal observation channel: ingest
 //! rejects absurd measurement times from sensors, but anything that can
 //! open the `obs` service can bypass it. The filter stage must reject such
 //! observations before `predict` (counted as `time_out_of_range`), never

@@ -1,5 +1,5 @@
-//! Retiring states to keep an incrementally built chain bounded (issue 4:
-//! "a bounded chain: states that carry negligible belief mass and lie far
+//! Retiring states to keep an incrementally built chain bounded
+//! ("a bounded chain: states that carry negligible belief mass and lie far
 //! from the belief are retired and their neighbours reconnected").
 //!
 //! The thesis only grows chains. Removing a set R of states is the reverse

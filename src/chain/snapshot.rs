@@ -1,7 +1,7 @@
 //! Versioned chain snapshots: the flat layout the refine stage writes **in
 //! place** into a shared-memory slice of `u64` words and the filter reads in
 //! place (DESIGN.md: "large data go on slice services, written once in
-//! place by the publisher and read in place by subscribers"; issue 4).
+//! place by the publisher and read in place by subscribers").
 //!
 //! A snapshot carries everything the filter needs to propagate on the
 //! time-equalised chain M_n^δ (thesis §3.3, eq. 3.8–3.9) without building

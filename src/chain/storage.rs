@@ -202,7 +202,7 @@ pub fn row_capacity(k: u32) -> u32 {
 }
 
 /// A read-only snapshot of a chain as flat slices — the layout published
-/// zero-copy by the refine stage (issue 4) and consumed by the filters.
+/// zero-copy by the refine stage and consumed by the filters.
 ///
 /// Invariants (checked by [`ChainView::validate`]): `states.len() = n·dim`,
 /// `ids`, `holding`, `radius` have length n, `row_offsets` has length n + 1,

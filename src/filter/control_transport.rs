@@ -1,4 +1,4 @@
-//! The control's transport on a chain built for u₀ (issue 4): an upwind
+//! The control's transport on a chain built for u₀: an upwind
 //! jump process whose drift is exactly the control's, for every control.
 //!
 //! A chain built for the reference control u₀ is locally consistent with

@@ -1,5 +1,5 @@
 //! The moving frame of [`LiveChainFilter`] against the exact Kalman filter
-//! on a linear-Gaussian SDE with drift (issue 4): a constant-velocity model
+//! on a linear-Gaussian SDE with drift: a constant-velocity model
 //! (position p, velocity v; dp = v dt + q_p dw₁, dv = u dt + q_v dw₂) with
 //! position observations, driven as the pipeline drives it: every
 //! `PUBLISH` filter steps a version is built by the refine stage's

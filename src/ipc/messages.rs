@@ -63,7 +63,7 @@ pub struct Trace {
     pub t_control_out_ns: u64,
 }
 
-/// The latency hops a trace yields (report keys of issue 2 item 8).
+/// The latency hops a trace yields (the report's `hops` keys).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 #[repr(u32)]
 pub enum Hop {
@@ -551,7 +551,7 @@ pub struct StageStats {
     /// `control_cost_time_s` (0: no data).
     pub control_cost: f64,
     pub control_cost_time_s: f64,
-    /// Chain (issue 4). Filter: versions installed; refine: published.
+    /// Chain. Filter: versions installed; refine: published.
     pub chain_versions: u64,
     /// Chain states (filter: of the active version; refine: current size).
     pub chain_states: u64,

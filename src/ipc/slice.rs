@@ -4,8 +4,8 @@
 //! where it lies. Nothing is copied or serialised on the way, so the cost of
 //! a send does not grow with the slice length (DESIGN.md: "large data go on
 //! slice services, written once in place by the publisher and read in place
-//! by subscribers"). Chain snapshots (issue 4) and the latency tool's
-//! zero-copy paths (issue 6) use them.
+//! by subscribers"). Chain snapshots and the latency tool's
+//! zero-copy paths use them.
 //!
 //! A slice channel is `beliefbus/<instance>/<channel>` like a message
 //! channel, with its own element type, maximum length and [`SliceQos`].

@@ -1,4 +1,4 @@
-//! The run report (issue 2 item 8): JSON written by `beliefbus run --report`
+//! The run report: JSON written by `beliefbus run --report`
 //! and the tables printed at the end of a run.
 //!
 //! ```text
@@ -18,7 +18,7 @@
 //!              published, refine_states, fallback_steps, fallback_episodes,
 //!              fallback_by_cause: {degenerate, age, evidence}, fallback_reinits,
 //!              fallback_untethered,
-//!              fallback_cost_p50_us, fallback_cost_p99_us, stale_max_ms}   (filter backend `chain`; issue 4)
+//!              fallback_cost_p50_us, fallback_cost_p99_us, stale_max_ms}   (filter backend `chain`)
 //!   shared_memory: {files_removed, files_left} }
 //! ```
 //! Hops count only samples measured after `run.warmup_s`; a figure with no

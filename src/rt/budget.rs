@@ -2,7 +2,7 @@
 //! into a histogram, and a time above the budget counts as a deadline miss
 //! (DESIGN.md: "misses are counted and reported, never hidden").
 //!
-//! Lateness (issue 6, item 3): a message is *released* when its input was
+//! Lateness: a message is *released* when its input was
 //! published (the plant: when its tick was due). Its deadline is release +
 //! budget, so its lateness is `(t_end − t_release) − budget` — negative when
 //! early. The response time `t_end − t_release` (queueing + compute) goes

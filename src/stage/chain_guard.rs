@@ -1,4 +1,4 @@
-//! Stale-chain fallback of the filter stage (issue 4): when is the live
+//! Stale-chain fallback of the filter stage: when is the live
 //! chain filter's belief published, and when a Gaussian filter's that runs
 //! beside it on every observation.
 //!

@@ -9,7 +9,7 @@
 //! counted by reason: a refused prediction publishes nothing, a refused
 //! update publishes the prediction flagged `UPDATE_REFUSED`.
 //!
-//! The `chain` backend (issue 4) runs [`LiveChainFilter`] on the snapshots
+//! The `chain` backend runs [`LiveChainFilter`] on the snapshots
 //! of the refine stage's `chain` slice channel: after each belief is
 //! published (off the sensor→belief path), a received version is prepared
 //! for at most `filter.chain.prepare_budget_us` and swapped in when ready;
