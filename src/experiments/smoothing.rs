@@ -53,7 +53,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let pts = if sampling == "uniform" {
         Sampler::Uniform.sample_many(model.bounds(), n, &mut srng)
     } else {
-        super::chain_util::predictive_points(&model, &prior, t_end, n, 0.1, dt, &mut srng)
+        crate::chain::placement::predictive_points(&model, &prior, t_end, n, 0.1, dt, &mut srng)?
     };
     let mut chain = Chain::batch(&model, cfg, &pts)?;
     let mut eq = crate::chain::TimeEqualized::new(dt)?;
