@@ -23,6 +23,7 @@ pub mod discrete;
 pub mod double_slit;
 pub mod himmelblau;
 pub mod linear;
+pub mod lorenz;
 pub mod param_estimation;
 pub mod ship;
 pub mod vanderpol;
