@@ -22,6 +22,8 @@ pub mod live_chain;
 pub mod pf;
 pub mod resample;
 pub mod smoother;
+#[cfg(test)]
+mod step_check_tests;
 pub mod ukf;
 
 use crate::belief::Gaussian;

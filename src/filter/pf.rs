@@ -42,7 +42,10 @@ pub struct PfConfig {
     pub particles: usize,
     /// Resample when ESS < resample_threshold · N (0: never, 1: always).
     pub resample_threshold: f64,
-    /// Largest Euler–Maruyama substep (seconds).
+    /// Largest Euler–Maruyama substep (seconds). [`PfConfig::build`]
+    /// refuses a step that is too coarse for the model (see
+    /// [`build::em_step_bound`]); [`PfConfig::with_derived_step`] sets the
+    /// largest acceptable one.
     pub max_dt: f64,
     /// Resampling scheme.
     pub resampling: Scheme,
@@ -76,6 +79,49 @@ impl PfConfig {
         }
         build::positive("max_dt", self.max_dt)
     }
+
+    /// A bootstrap PF of N particles drawn from `prior` at `t0` — the
+    /// construction shared by every filter config (`XxxConfig { .. }.build`).
+    ///
+    /// Besides [`Self::validate`], the Euler–Maruyama step is checked
+    /// against the model's time scales measured on trajectories from the
+    /// prior ([`crate::model::scale::probe`] on a fixed stream, so the
+    /// verdict depends on the model and prior only): `max_dt ≤` [`build::em_step_bound`] (the fastest rate
+    /// resolved, and the drift error within the model's own diffusion) or
+    /// a [`ConfigError`] on `max_dt` names the largest acceptable step.
+    /// The check draws nothing from the filter's stream.
+    pub fn build<M: SdeModel>(
+        &self,
+        model: M,
+        prior: &Gaussian,
+        t0: f64,
+    ) -> Result<Pf<M>, BuildError> {
+        self.validate()?;
+        let dims = model.dims();
+        build::check_dims(dims)?;
+        gauss::check_prior(prior, dims.state)?;
+        build::check_step(
+            &model,
+            prior,
+            "max_dt",
+            self.max_dt,
+            build::StepRule::EulerMaruyama,
+            0,
+        )?;
+        Pf::unchecked(model, self, prior, t0)
+    }
+
+    /// This config with `max_dt` lowered, if needed, to the largest step
+    /// [`Self::build`] accepts for `model` started from `prior`.
+    pub fn with_derived_step<M: SdeModel + ?Sized>(
+        mut self,
+        model: &M,
+        prior: &Gaussian,
+    ) -> Result<Self, FilterError> {
+        let (max, _) = build::derived_step(model, prior, build::StepRule::EulerMaruyama, 0)?;
+        self.max_dt = self.max_dt.min(max);
+        Ok(self)
+    }
 }
 
 /// Bootstrap particle filter.
@@ -99,8 +145,13 @@ pub struct Pf<M: SdeModel> {
 }
 
 impl<M: SdeModel> Pf<M> {
-    /// N particles drawn from the prior N(mean, cov) at time `t0`.
+    /// N particles drawn from the prior N(mean, cov) at time `t0`: the same
+    /// as [`PfConfig::build`], step check included.
     pub fn new(model: M, cfg: &PfConfig, prior: &Gaussian, t0: f64) -> Result<Self, BuildError> {
+        cfg.build(model, prior, t0)
+    }
+
+    fn unchecked(model: M, cfg: &PfConfig, prior: &Gaussian, t0: f64) -> Result<Self, BuildError> {
         cfg.validate()?;
         let dims = model.dims();
         build::check_dims(dims)?;
