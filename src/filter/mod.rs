@@ -12,6 +12,7 @@
 
 pub mod build;
 pub mod chain_filter;
+pub mod chain_spec;
 pub mod control_transport;
 pub mod decoder;
 pub mod ekf;
