@@ -347,8 +347,8 @@ fn sim_group<M: SdeModel + Clone>(
 /// reset to the prior when it ends). `order`: the slots as placed, or
 /// along the Hilbert curve (the experiment's default).
 fn vdp_group(c: &mut Criterion, order: &str) {
-    use beliefbus::experiments::chain_util::predictive_points;
-    use beliefbus::experiments::vanderpol::{eliminate, VDP_FLUSH_MASS};
+    use beliefbus::chain::placement::{eliminate, predictive_points};
+    use beliefbus::experiments::vanderpol::VDP_FLUSH_MASS;
     let group = format!("filter_step_vdp/{order}");
     let vdp_sizes = [2_000usize, 4_000, 8_000];
     let re_ok = {
@@ -378,7 +378,7 @@ fn vdp_group(c: &mut Criterion, order: &str) {
     g.sample_size(20).measurement_time(Duration::from_secs(3));
     for n in vdp_sizes {
         let mut rng = stream(7, n as u64);
-        let cand = predictive_points(&model, &prior, 10.0, 3 * n, 0.1, dt, &mut rng);
+        let cand = predictive_points(&model, &prior, 10.0, 3 * n, 0.1, dt, &mut rng).unwrap();
         let pts = eliminate(&cand, 2, n);
         let pts = order_points(order, pts);
         let mut cf = ChainConfig::moment_matched(2).with_step(dt);

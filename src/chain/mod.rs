@@ -9,7 +9,8 @@
 //!
 //! Procedures (thesis §2.4.1) and where they live:
 //! - `Sample` — [`sample::Sampler`] (uniform on S, or concentrated around a
-//!   Gaussian belief mixed with uniform);
+//!   Gaussian belief mixed with uniform); the prior-predictive placement of
+//!   §3.3.3 with weighted sample elimination — [`placement`];
 //! - `Near` — [`NearRule`] on the k-d tree of [`index::SpatialIndex`]:
 //!   the papers' radius r = γ(log n/n)^{1/d}, or k = ⌈c log n⌉ nearest
 //!   (k-PRM*), r then being the distance to the k-th neighbour;
@@ -33,6 +34,7 @@ pub mod knn_tree;
 pub mod linalg;
 pub mod nnls;
 pub mod order;
+pub mod placement;
 pub mod prefetch;
 pub mod retire;
 pub mod sample;

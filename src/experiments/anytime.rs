@@ -19,9 +19,10 @@
 //! stage loops": the multi-process run is `beliefbus run`; this experiment
 //! isolates the anytime behaviour.)
 
-use super::chain_util::{live_chain_filter, predictive_points, split_config_param, Params};
+use super::chain_util::{live_chain_filter, split_config_param, Params};
 use super::{ExperimentArgs, ExperimentReport, Row};
 use crate::belief::Gaussian;
+use crate::chain::placement::predictive_points;
 use crate::chain::snapshot::words_needed;
 use crate::chain::Chain;
 use crate::filter::chain_filter::ChainFilter;
@@ -140,7 +141,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         cfg.refine.uniform_fraction,
         dt,
         &mut crate::rng::stream(args.seed, 0xc4a1),
-    );
+    )?;
     let chain = Chain::batch(&model, chain_config(&cfg, dims.state), &pts)?;
     let mut off = ChainFilter::new(model.clone(), chain, dt)?;
     off.reset(0.0, &prior);

@@ -9,6 +9,7 @@
 pub mod anytime;
 pub mod arm;
 pub mod chain_closed_loop;
+pub mod chain_defaults;
 pub mod chain_util;
 pub mod convergence;
 pub mod decoding;
@@ -115,6 +116,11 @@ pub fn all() -> Vec<Experiment> {
             name: "chain-closed-loop",
             about: "issue 4: the live chain filter vs the PF under strong recorded PD forces on the ship (closed-loop-like)",
             run: chain_closed_loop::run,
+        },
+        Experiment {
+            name: "chain-defaults",
+            about: "the chain filter built from ChainFilterSpec's defaults vs PF-300 on Van der Pol and stochastic Lorenz-63: error, CPU per run, ratio",
+            run: chain_defaults::run,
         },
         Experiment {
             name: "ship-control",

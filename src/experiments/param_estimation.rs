@@ -59,13 +59,17 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     )?;
     let mut cf = ChainFilter::new(model.clone(), chain, dt)?;
     let build_s = t0.elapsed().as_secs_f64();
+    // one Euler–Maruyama step per observation unless PfConfig::build's
+    // step check asks for finer (the wide prior on φ reaches drift rates
+    // ≈ 27 /s, where 10 ms steps misstate the fastest rate by ≈ 13 %)
     let pf_cfg = PfConfig {
         particles,
         max_dt: dt,
         resampling: Scheme::Multinomial,
         resample_threshold: 1.0,
         ..PfConfig::default()
-    };
+    }
+    .with_derived_step(&model, &prior)?;
     let mut bar = Progress::new("param-estimation", runs, args.progress);
     // Truth with φ = 0.5 exactly: simulate from truth_prior; filters from prior.
     let res = compare_with_truth(

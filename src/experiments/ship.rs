@@ -55,8 +55,7 @@
 use anyhow::Result;
 
 use super::chain_util::{
-    compare_filters, draw_from, mean_se, paired_difference, predictive_points, result_row,
-    simulate, Params,
+    compare_filters, draw_from, mean_se, paired_difference, result_row, simulate, Params,
 };
 use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::belief::Gaussian;
@@ -122,7 +121,15 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let steps = (t_end / dt).round() as usize;
     let t0 = std::time::Instant::now();
     let mut rng = stream(args.seed, 77);
-    let pts = predictive_points(&model, &prior, t_end, n, uniform_fraction, dt, &mut rng);
+    let pts = crate::chain::placement::predictive_points(
+        &model,
+        &prior,
+        t_end,
+        n,
+        uniform_fraction,
+        dt,
+        &mut rng,
+    )?;
     let mut cfg = ChainConfig::moment_matched(4);
     cfg.near = NearRule::Knn { c: c_knn };
     cfg.step = (step > 0.0).then_some(step);

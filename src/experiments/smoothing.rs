@@ -54,7 +54,9 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         let pts = if uniform {
             Sampler::Uniform.sample_many(model.bounds(), n, &mut srng)
         } else {
-            super::chain_util::predictive_points(&model, &prior, t_end, n, 0.1, dt, &mut srng)
+            crate::chain::placement::predictive_points(
+                &model, &prior, t_end, n, 0.1, dt, &mut srng,
+            )?
         };
         let chain = Chain::batch(&model, cfg.clone(), &pts)?;
         let mut eq = crate::chain::TimeEqualized::new(dt)?;

@@ -97,11 +97,11 @@
 use anyhow::Result;
 
 use super::chain_util::{
-    draw_from, mean_se, paired_difference, predictive_points, run_filter_every, simulate, Params,
-    RunResult,
+    draw_from, mean_se, paired_difference, run_filter_every, simulate, Params, RunResult,
 };
 use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::belief::Gaussian;
+use crate::chain::placement::{eliminate, predictive_points};
 use crate::chain::{Chain, ChainConfig, Sampler};
 use crate::filter::chain_filter::ChainFilter;
 use crate::filter::ekf::{Ekf, EkfConfig};
@@ -247,7 +247,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                         uniform_fraction,
                         filter_dt,
                         &mut rng,
-                    );
+                    )?;
                     if mt > 0 {
                         cand.extend(predictive_points(
                             &model,
@@ -257,7 +257,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                             uniform_fraction,
                             filter_dt,
                             &mut rng,
-                        ));
+                        )?);
                     }
                     eliminate(&cand, 2, n)
                 }
@@ -269,7 +269,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                     uniform_fraction,
                     filter_dt,
                     &mut rng,
-                ),
+                )?,
             };
             let pts = if state_order == "hilbert" {
                 crate::chain::order::hilbert_sorted(&pts, 2)
@@ -506,127 +506,9 @@ pub fn equal_error_cpu(curve: &[(usize, f64, f64)], target: f64) -> Option<f64> 
     })
 }
 
-/// Weighted sample elimination (C. Yuksel, "Sample elimination for
-/// generating Poisson disk sample sets", Eurographics 2015), with a local
-/// radius so that the candidates' density is kept: `n` of the points in
-/// `cand` (flat m × d), spread more evenly than an i.i.d. draw of the same
-/// density (no clumps, no holes). Each candidate i gets the radius R_i of
-/// its k-th nearest candidate, k = ⌈3.5 m/n⌉ (≈ the neighbourhood that
-/// will keep ~3 points), and the weight W_i = Σ_j (1 − ‖z_i − z_j‖/R_i)⁸
-/// over those neighbours; the candidate of largest weight is removed and
-/// its neighbours' weights lowered, until n remain. Scale-free in R_i, so
-/// every region is thinned by about the same factor m/n.
-pub fn eliminate(cand: &[f64], d: usize, n: usize) -> Vec<f64> {
-    use std::collections::BinaryHeap;
-    let m = cand.len() / d;
-    if n >= m || d == 0 {
-        return cand.to_vec();
-    }
-    let Some(index) = crate::chain::index::SpatialIndex::from_points(d, cand) else {
-        return cand[..n * d].to_vec();
-    };
-    let k = ((3.5 * m as f64 / n as f64).ceil() as usize).clamp(2, m - 1);
-    let mut weight = vec![0.0f64; m];
-    // rev[j]: (i, w_ij) for every i that has j among its neighbours
-    let mut rev: Vec<Vec<(u32, f64)>> = vec![Vec::new(); m];
-    let mut near = Vec::with_capacity(k + 1);
-    for i in 0..m {
-        index.nearest(&cand[i * d..(i + 1) * d], k + 1, &mut near);
-        let r = near.last().map_or(0.0, |&(_, d2)| d2.sqrt());
-        if r <= 0.0 {
-            continue;
-        }
-        for &(j, d2) in &near {
-            if j as usize == i {
-                continue;
-            }
-            let w = (1.0 - d2.sqrt() / r).max(0.0).powi(8);
-            weight[i] += w;
-            rev[j as usize].push((i as u32, w));
-        }
-    }
-    // max-heap on the weight's bits (weights ≥ 0 order like their bits);
-    // stale entries are skipped on pop
-    let mut heap: BinaryHeap<(u64, u32)> =
-        (0..m).map(|i| (weight[i].to_bits(), i as u32)).collect();
-    let mut removed = vec![false; m];
-    let mut left = m;
-    while left > n {
-        let Some((bits, i)) = heap.pop() else { break };
-        let i = i as usize;
-        if removed[i] || bits != weight[i].to_bits() {
-            continue;
-        }
-        removed[i] = true;
-        left -= 1;
-        for &(j, w) in &rev[i] {
-            let j = j as usize;
-            if !removed[j] {
-                weight[j] = (weight[j] - w).max(0.0);
-                heap.push((weight[j].to_bits(), j as u32));
-            }
-        }
-    }
-    (0..m)
-        .filter(|&i| !removed[i])
-        .flat_map(|i| cand[i * d..(i + 1) * d].iter().copied())
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
-    use super::{eliminate, equal_error_cpu};
-    use rand::RngExt;
-
-    /// Mean distance from each point to its nearest other point (brute force).
-    fn mean_nn(p: &[f64]) -> f64 {
-        let n = p.len() / 2;
-        let mut s = 0.0;
-        for i in 0..n {
-            let mut best = f64::INFINITY;
-            for j in 0..n {
-                if i != j {
-                    let d = (p[2 * i] - p[2 * j]).hypot(p[2 * i + 1] - p[2 * j + 1]);
-                    best = best.min(d);
-                }
-            }
-            s += best;
-        }
-        s / n as f64
-    }
-
-    #[test]
-    fn elimination_keeps_the_density_and_spreads_the_points() {
-        // Candidates: density 1 on [0,1]², density 4 on [1,2]×[0,1]
-        // (1200 + 4800); keep 1/4. Each region keeps ≈ 1/4 of its own
-        // candidates, every kept point is a candidate, and the kept points'
-        // mean nearest-neighbour distance beats an i.i.d. quarter's.
-        let mut rng = crate::rng::stream(4, 0);
-        let mut cand = vec![];
-        for _ in 0..1200 {
-            cand.push(rng.random::<f64>());
-            cand.push(rng.random::<f64>());
-        }
-        for _ in 0..4800 {
-            cand.push(1.0 + rng.random::<f64>());
-            cand.push(rng.random::<f64>());
-        }
-        let kept = eliminate(&cand, 2, 1500);
-        assert_eq!(kept.len(), 2 * 1500);
-        for k in kept.chunks(2) {
-            assert!(cand.chunks(2).any(|c| c == k), "{k:?} is not a candidate");
-        }
-        let left = kept.chunks(2).filter(|k| k[0] < 1.0).count() as f64;
-        // 300 expected on the left; the binomial sd of an i.i.d. pick is ≈ 15
-        assert!((left - 300.0).abs() < 45.0, "left region kept {left}");
-        // i.i.d. quarter: every 4th candidate (candidates are i.i.d.)
-        let iid: Vec<f64> = cand.chunks(2).step_by(4).flatten().copied().collect();
-        let (even, random) = (mean_nn(&kept), mean_nn(&iid));
-        assert!(
-            even > 1.3 * random,
-            "mean NN distance {even} vs i.i.d. {random}"
-        );
-    }
+    use super::equal_error_cpu;
 
     #[test]
     fn equal_error_cpu_interpolates_log_cpu_between_the_bracketing_sizes() {

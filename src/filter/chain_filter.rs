@@ -7,6 +7,12 @@
 //! estimate:        x̂ = Σ_z z φ(z),  P̂ = Σ_z (z − x̂)(z − x̂)ᵀ φ(z)
 //! ```
 //!
+//! To build one from a model and a prior alone — δ, state budget and
+//! placement derived from the model — use
+//! [`crate::filter::chain_spec::ChainFilterSpec`]`::build`, the same
+//! `XxxConfig { .. }.build(model, &prior, t0)` pattern as the PF, EKF and
+//! UKF configs; [`ChainFilter::new`] takes a chain built by hand.
+//!
 //! Observations are the crate's *sampled* measurements (see
 //! [`crate::model`]): the papers' continuous `dy = g dt + G dv` observed as
 //! increments over Δ is `y = Δy/Δ` with σ = G/√Δ, whose likelihood is the

@@ -43,6 +43,34 @@ impl EkfConfig {
     pub fn validate(&self) -> Result<(), ConfigError> {
         build::positive("max_dt", self.max_dt)
     }
+
+    /// An EKF at time `t0` with prior N(mean, cov) — the construction
+    /// shared by every filter config. Besides [`Self::validate`], the RK4
+    /// substep is checked against the model ([`build::StepRule::Rk4`]):
+    /// `max_dt · ρ ≤` [`build::RK4_RATE_STEP`], ρ the 99th-percentile
+    /// spectral radius of
+    /// the drift Jacobian over trajectories from the prior
+    /// ([`crate::model::scale::probe`], a fixed seed).
+    pub fn build<M: SdeJacobians>(
+        &self,
+        model: M,
+        prior: &Gaussian,
+        t0: f64,
+    ) -> Result<Ekf<M>, BuildError> {
+        self.validate()?;
+        let dims = model.dims();
+        build::check_dims(dims)?;
+        gauss::check_prior(prior, dims.state)?;
+        build::check_step(
+            &model,
+            prior,
+            "max_dt",
+            self.max_dt,
+            build::StepRule::Rk4,
+            0,
+        )?;
+        Ekf::unchecked(model, self, prior, t0)
+    }
 }
 
 /// Continuous–discrete EKF.
@@ -57,8 +85,13 @@ pub struct Ekf<M: SdeJacobians> {
 }
 
 impl<M: SdeJacobians> Ekf<M> {
-    /// An EKF at time `t0` with prior N(mean, cov).
+    /// An EKF at time `t0` with prior N(mean, cov): the same as
+    /// [`EkfConfig::build`], step check included.
     pub fn new(model: M, cfg: &EkfConfig, prior: &Gaussian, t0: f64) -> Result<Self, BuildError> {
+        cfg.build(model, prior, t0)
+    }
+
+    fn unchecked(model: M, cfg: &EkfConfig, prior: &Gaussian, t0: f64) -> Result<Self, BuildError> {
         cfg.validate()?;
         let dims = model.dims();
         build::check_dims(dims)?;

@@ -12,6 +12,7 @@
 
 pub mod build;
 pub mod chain_filter;
+pub mod chain_spec;
 pub mod control_transport;
 pub mod decoder;
 pub mod ekf;
@@ -22,6 +23,8 @@ pub mod live_chain;
 pub mod pf;
 pub mod resample;
 pub mod smoother;
+#[cfg(test)]
+mod step_check_tests;
 pub mod ukf;
 
 use crate::belief::Gaussian;

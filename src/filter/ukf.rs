@@ -85,6 +85,34 @@ impl UkfConfig {
         }
         Ok(())
     }
+
+    /// A UKF at time `t0` with prior N(mean, cov) — the construction
+    /// shared by every filter config. Besides [`Self::validate`], the
+    /// prediction substep is checked against the model
+    /// ([`build::StepRule::Rk4`]): `max_dt · ρ ≤` [`build::RK4_RATE_STEP`],
+    /// ρ the 99th-percentile spectral radius of
+    /// the drift Jacobian over trajectories from the prior
+    /// ([`crate::model::scale::probe`], a fixed seed).
+    pub fn build<M: SdeModel>(
+        &self,
+        model: M,
+        prior: &Gaussian,
+        t0: f64,
+    ) -> Result<Ukf<M>, BuildError> {
+        let dims = model.dims();
+        build::check_dims(dims)?;
+        self.validate(dims.state)?;
+        gauss::check_prior(prior, dims.state)?;
+        build::check_step(
+            &model,
+            prior,
+            "max_dt",
+            self.max_dt,
+            build::StepRule::Rk4,
+            0,
+        )?;
+        Ukf::unchecked(model, self, prior, t0)
+    }
 }
 
 /// Sigma-point weights and scale.
@@ -141,8 +169,13 @@ pub struct Ukf<M: SdeModel> {
 }
 
 impl<M: SdeModel> Ukf<M> {
-    /// A UKF at time `t0` with prior N(mean, cov).
+    /// A UKF at time `t0` with prior N(mean, cov): the same as
+    /// [`UkfConfig::build`], step check included.
     pub fn new(model: M, cfg: &UkfConfig, prior: &Gaussian, t0: f64) -> Result<Self, BuildError> {
+        cfg.build(model, prior, t0)
+    }
+
+    fn unchecked(model: M, cfg: &UkfConfig, prior: &Gaussian, t0: f64) -> Result<Self, BuildError> {
         let dims = model.dims();
         build::check_dims(dims)?;
         cfg.validate(dims.state)?;

@@ -23,7 +23,9 @@ pub mod discrete;
 pub mod double_slit;
 pub mod himmelblau;
 pub mod linear;
+pub mod lorenz;
 pub mod param_estimation;
+pub mod scale;
 pub mod ship;
 pub mod vanderpol;
 
@@ -106,22 +108,7 @@ pub trait SdeModel: Send + Sync {
 pub trait SdeJacobians: SdeModel {
     /// ∂f/∂x at (x, u), d × d column-major.
     fn drift_jacobian(&self, x: &[f64], u: &[f64], jac: &mut [f64]) {
-        let d = self.dims().state;
-        let mut xp = [0.0; MAX_STATE];
-        let mut fp = [0.0; MAX_STATE];
-        let mut fm = [0.0; MAX_STATE];
-        xp[..d].copy_from_slice(x);
-        for j in 0..d {
-            let h = fd_step(x[j]);
-            xp[j] = x[j] + h;
-            self.drift(&xp[..d], u, &mut fp[..d]);
-            xp[j] = x[j] - h;
-            self.drift(&xp[..d], u, &mut fm[..d]);
-            xp[j] = x[j];
-            for i in 0..d {
-                jac[i + j * d] = (fp[i] - fm[i]) / (2.0 * h);
-            }
-        }
+        scale::fd_drift_jacobian(self, x, u, jac)
     }
 
     /// ∂g/∂x at x, m × d column-major.
