@@ -131,9 +131,12 @@ fn description(p: &Value) -> String {
 
 /// One table cell: one line, no bare `|`.
 fn cell(s: &str) -> String {
+    // Intra-doc links ([`Foo`]) read as plain code in the book.
     s.split_whitespace()
         .collect::<Vec<_>>()
         .join(" ")
+        .replace("[`", "`")
+        .replace("`]", "`")
         .replace('|', "\\|")
 }
 

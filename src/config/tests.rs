@@ -220,3 +220,16 @@ fn durations_at_the_limit_are_valid_durations() {
     let c = load_str(BASE, &["run.duration_s=31536000".into()]).unwrap();
     assert_eq!(c.run.duration_s, MAX_DURATION_S);
 }
+
+#[test]
+fn an_integration_step_too_coarse_for_the_model_is_refused_at_validation() {
+    let text = include_str!("../../configs/vanderpol.toml");
+    // Van der Pol's drift reaches ρ ≈ 8 /s: Euler–Maruyama at 50 ms would
+    // bias the particle filter, RK4 at 100 ms the Kalman filters.
+    let e = err(text, &["filter.pf.max_dt=0.05"]);
+    assert_eq!(e.key, "filter.pf.max_dt", "{e}");
+    assert!(e.problem.contains("too coarse"), "{e}");
+    let e = err(text, &["filter.backend=ukf", "filter.ukf.max_dt=0.1"]);
+    assert_eq!(e.key, "filter.ukf.max_dt", "{e}");
+    assert!(load_str(text, &["filter.pf.max_dt=0.005".into()]).is_ok());
+}

@@ -307,6 +307,24 @@ impl PipelineConfig {
         if !(f.max_obs_age_us.is_finite() && f.max_obs_age_us >= 0.0) {
             return Err(ConfigError::new("filter.max_obs_age_us", "must be >= 0"));
         }
+        // The integration step of the filter that will run (the chain
+        // backend's fallback is the EKF) against the model's time scales:
+        // a step too coarse for the drift is refused here, not at start.
+        {
+            use crate::filter::build::{check_step, BuildError, StepRule};
+            let (key, step, rule) = match f.backend {
+                FilterBackend::Pf => ("filter.pf.max_dt", f.pf.max_dt, StepRule::EulerMaruyama),
+                FilterBackend::Ekf | FilterBackend::Chain => {
+                    ("filter.ekf.max_dt", f.ekf.max_dt, StepRule::Rk4)
+                }
+                FilterBackend::Ukf => ("filter.ukf.max_dt", f.ukf.max_dt, StepRule::Rk4),
+            };
+            match check_step(&model, &self.prior(), key, step, rule, 0) {
+                Ok(()) => {}
+                Err(BuildError::Config(e)) => return Err(ConfigError::new(key, e.problem)),
+                Err(e) => return Err(ConfigError::new("filter", e.to_string())),
+            }
+        }
         if f.backend == FilterBackend::Chain
             && !crate::scenario::full_rank_diffusion(&model, &f.prior_mean)
         {

@@ -157,7 +157,7 @@ pub fn derived_step<M: crate::model::SdeModel + ?Sized>(
 /// `step` (the config field `key`) must be within what `rule` accepts,
 /// else a [`ConfigError`] that names the largest acceptable step. A step
 /// that silently biases the dynamics is refused rather than used.
-pub(crate) fn check_step<M: crate::model::SdeModel + ?Sized>(
+pub fn check_step<M: crate::model::SdeModel + ?Sized>(
     model: &M,
     prior: &crate::belief::Gaussian,
     key: &'static str,
