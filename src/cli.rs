@@ -78,6 +78,10 @@ enum Command {
         /// Stages chaos may kill, comma-separated (default: all).
         #[arg(long, value_delimiter = ',')]
         chaos_stages: Vec<String>,
+        /// Fault injection: STAGE busy-loops without blocking SECONDS after
+        /// its first start (a runaway real-time stage), e.g. `plant:1`.
+        #[arg(long, value_name = "STAGE:SECONDS")]
+        chaos_spin: Option<String>,
         /// Write a timeline (JSON lines: RSS, shared-memory files, latency
         /// percentiles per period) to this file.
         #[arg(long)]
@@ -181,6 +185,7 @@ pub fn main_with(registry: Registry) -> i32 {
         chaos,
         chaos_seed,
         chaos_stages,
+        chaos_spin,
         timeline,
         timeline_period,
     } = &cli.command
@@ -202,6 +207,13 @@ pub fn main_with(registry: Registry) -> i32 {
                 }
             }
         }
+        let spin = match chaos_spin.as_deref().map(parse_spin).transpose() {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!("config: `--chaos-spin`: {e}");
+                return 2;
+            }
+        };
         let period = timeline_period.unwrap_or(if timeline.is_some() { 60.0 } else { 0.0 });
         if !(period.is_finite() && period >= 0.0) {
             eprintln!("config: `--timeline-period`: must be >= 0 seconds, got {period}");
@@ -228,6 +240,7 @@ pub fn main_with(registry: Registry) -> i32 {
             chaos_s: *chaos,
             chaos_seed: *chaos_seed,
             chaos_stages: kinds,
+            chaos_spin: spin,
             timeline: timeline.clone(),
             timeline_period_s: period,
         };
@@ -336,13 +349,31 @@ fn run(cli: Cli) -> Result<()> {
             print!("{}", report.render());
             if let Some(path) = json {
                 let text = serde_json::to_string_pretty(&report)?;
-                std::fs::write(&path, text)
+                crate::rt::files::replace_file(&path, text.as_bytes())
                     .with_context(|| format!("writing {}", path.display()))?;
                 eprintln!("wrote {}", path.display());
             }
             Ok(())
         }
     }
+}
+
+/// `STAGE:SECONDS` of `--chaos-spin`.
+fn parse_spin(s: &str) -> Result<(crate::ipc::StageKind, f64), String> {
+    let (stage, secs) = s
+        .split_once(':')
+        .ok_or_else(|| format!("'{s}' is not STAGE:SECONDS"))?;
+    let kind = crate::ipc::StageKind::from_name(stage.trim()).ok_or_else(|| {
+        format!("unknown stage '{stage}' (ingest, filter, control, refine, plant)")
+    })?;
+    let t: f64 = secs
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{secs}' is not a number of seconds"))?;
+    if !(t.is_finite() && (0.0..=3600.0).contains(&t)) {
+        return Err(format!("{t} s is not within 0..=3600"));
+    }
+    Ok((kind, t))
 }
 
 /// Refuse what would only fail (or print nonsense) after a long run: an

@@ -47,22 +47,7 @@ pub const MAX_SUBSTEPS: f64 = 1e5;
 /// 1 + 2 (iceoryx2 0.10 `required_amount_of_samples_per_data_segment`).
 pub const CHAIN_SEGMENT_SAMPLES: u64 = 12;
 
-/// The machine's physical memory (bytes).
-pub fn physical_memory() -> u64 {
-    // SAFETY: sysconf has no preconditions.
-    let (pages, size) = unsafe {
-        (
-            libc::sysconf(libc::_SC_PHYS_PAGES),
-            libc::sysconf(libc::_SC_PAGESIZE),
-        )
-    };
-    if pages > 0 && size > 0 {
-        (pages as u64).saturating_mul(size as u64)
-    } else {
-        // Unknown: assume a small machine.
-        1 << 30
-    }
-}
+pub use crate::rt::sched::physical_memory;
 
 /// The memory one config-sized structure may take (bytes).
 pub fn memory_cap() -> u64 {

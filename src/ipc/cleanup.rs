@@ -117,15 +117,61 @@ pub fn resources(prefix: &str) -> Vec<PathBuf> {
         return out;
     }
     collect(Path::new(SHM_DIR), prefix, 0, &mut out);
-    super::init_logging();
-    let root = Config::global_config()
-        .global
-        .root_path()
-        .as_string()
-        .to_string();
-    collect(Path::new(&root), prefix, 3, &mut out);
+    collect(&root_path(), prefix, 3, &mut out);
     out.sort();
     out
+}
+
+/// iceoryx2's root path (`/tmp/iceoryx2` unless configured).
+pub fn root_path() -> PathBuf {
+    super::init_logging();
+    PathBuf::from(
+        Config::global_config()
+            .global
+            .root_path()
+            .as_string()
+            .to_string(),
+    )
+}
+
+/// The root path, when it exists, must be trustworthy: a real directory
+/// (not a link) owned by this user or by root, writable by nobody else.
+/// Another user who made `/tmp/iceoryx2` first, or left it writable, could
+/// otherwise replace the run's service records. Checked by the launcher
+/// once its own bus has made the directory, before any stage starts.
+pub fn check_root(root: &Path) -> Result<(), String> {
+    use std::os::unix::fs::MetadataExt;
+    let m = match std::fs::symlink_metadata(root) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(format!("iceoryx2 root {}: {e}", root.display())),
+    };
+    // SAFETY: geteuid has no preconditions.
+    let me = unsafe { libc::geteuid() };
+    if m.file_type().is_symlink() || !m.is_dir() {
+        return Err(format!(
+            "iceoryx2 root {} is not a directory (a link or a file): remove it",
+            root.display()
+        ));
+    }
+    if m.uid() != me && m.uid() != 0 {
+        return Err(format!(
+            "iceoryx2 root {} belongs to uid {}, not to this user (uid {me}) or root: \
+             another user could replace the run's service records; remove it, \
+             or run under another root path",
+            root.display(),
+            m.uid()
+        ));
+    }
+    if m.mode() & 0o022 != 0 {
+        return Err(format!(
+            "iceoryx2 root {} has mode {:o}: writable by others, who could replace \
+             the run's service records; `chmod go-w` it",
+            root.display(),
+            m.mode() & 0o7777
+        ));
+    }
+    Ok(())
 }
 
 /// The files of `prefix` in `/dev/shm` only (shared-memory segments).
@@ -184,25 +230,28 @@ pub fn run_prefixes() -> Vec<String> {
     out
 }
 
-/// Remove the launcher state directories (`<temp>/<run prefix>state`, the
-/// resume files and refine's chain checkpoint) of runs whose launcher is
-/// gone: a launcher killed with SIGKILL cannot remove its own. Returns how
-/// many were removed.
-pub fn sweep_stale_state_dirs(temp: &std::path::Path) -> usize {
-    let Ok(entries) = std::fs::read_dir(temp) else {
+/// Remove the launcher state directories (`<base>/<run prefix>state.XXXXXX`,
+/// private: the resume files and refine's chain checkpoint) of runs whose
+/// launcher is gone: a launcher killed with SIGKILL cannot remove its own.
+/// Only this user's own directories are touched, never through a link.
+/// Returns how many were removed.
+pub fn sweep_stale_state_dirs(base: &std::path::Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(base) else {
         return 0;
     };
     let mut removed = 0;
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().to_string();
-        let Some(prefix) = name.strip_suffix("state") else {
+        let Some((prefix, _)) = name.rsplit_once("state.") else {
             continue;
         };
         match run_prefix_pid(prefix) {
             Some(pid) if !pid_alive(pid) => {}
             _ => continue,
         }
-        if e.path().is_dir() && std::fs::remove_dir_all(e.path()).is_ok() {
+        if crate::rt::files::check_private_dir(&e.path()).is_ok()
+            && std::fs::remove_dir_all(e.path()).is_ok()
+        {
             removed += 1;
         }
     }
@@ -213,7 +262,7 @@ pub fn sweep_stale_state_dirs(temp: &std::path::Path) -> usize {
 /// that have no alive node (and the state directories of such runs).
 /// Returns the prefixes whose shared memory was removed.
 pub fn sweep_stale_runs() -> Vec<String> {
-    sweep_stale_state_dirs(&std::env::temp_dir());
+    sweep_stale_state_dirs(&crate::rt::files::runtime_base());
     let mut swept = Vec::new();
     for prefix in run_prefixes() {
         match run_prefix_pid(&prefix) {
@@ -236,19 +285,47 @@ mod tests {
 
     #[test]
     fn state_dirs_of_dead_launchers_are_swept_and_live_ones_kept() {
-        let temp = std::env::temp_dir().join(format!("bb-sweep-{}", std::process::id()));
+        use crate::rt::files::PrivateDir;
+        let temp = PrivateDir::create("bb-sweep-").unwrap();
+        let mk = |stem: &str| {
+            let d = PrivateDir::create_in(temp.path(), stem).unwrap();
+            std::fs::write(d.path().join("refine.ckpt"), b"x").unwrap();
+            d
+        };
         // pid 0x7ffffffe is above any pid_max, so its launcher is gone.
-        let dead = temp.join(format!("{RUN_STEM}7ffffffe-0badcafe_state"));
-        let live = temp.join(format!("{}state", run_prefix()));
-        let other = temp.join("unrelated_state");
-        for d in [&dead, &live, &other] {
-            std::fs::create_dir_all(d).unwrap();
-            std::fs::write(d.join("refine.ckpt"), b"x").unwrap();
-        }
-        assert_eq!(sweep_stale_state_dirs(&temp), 1);
-        assert!(!dead.exists());
-        assert!(live.exists() && other.exists());
-        std::fs::remove_dir_all(&temp).unwrap();
+        let dead = mk(&format!("{RUN_STEM}7ffffffe-0badcafe_state."));
+        let live = mk(&format!("{}state.", run_prefix()));
+        let other = mk("unrelated_state.");
+        // A directory of a dead launcher that is not private is not ours
+        // to judge: left alone.
+        let shared = temp
+            .path()
+            .join(format!("{RUN_STEM}7ffffffe-0badcafe_state.shared"));
+        std::fs::create_dir(&shared).unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&shared, std::fs::Permissions::from_mode(0o755)).unwrap();
+        assert_eq!(sweep_stale_state_dirs(temp.path()), 1);
+        assert!(!dead.path().exists());
+        assert!(live.path().exists() && other.path().exists() && shared.exists());
+    }
+
+    #[test]
+    fn an_untrustworthy_iceoryx2_root_is_refused() {
+        use crate::rt::files::PrivateDir;
+        use std::os::unix::fs::PermissionsExt;
+        let d = PrivateDir::create("bb-root-").unwrap();
+        check_root(&d.path().join("absent")).unwrap();
+        let root = d.path().join("iceoryx2");
+        std::fs::create_dir(&root).unwrap();
+        std::fs::set_permissions(&root, std::fs::Permissions::from_mode(0o750)).unwrap();
+        check_root(&root).unwrap();
+        std::fs::set_permissions(&root, std::fs::Permissions::from_mode(0o777)).unwrap();
+        assert!(check_root(&root)
+            .unwrap_err()
+            .contains("writable by others"));
+        let link = d.path().join("link");
+        std::os::unix::fs::symlink(&root, &link).unwrap();
+        assert!(check_root(&link).unwrap_err().contains("not a directory"));
     }
 
     #[test]

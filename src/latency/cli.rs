@@ -152,7 +152,8 @@ fn duration(secs: f64) -> Result<Duration, LatencyError> {
 
 fn write_json<T: serde::Serialize>(path: &Path, v: &T) -> Result<()> {
     let text = serde_json::to_string_pretty(v)?;
-    std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
+    crate::rt::files::replace_file(path, (text + "\n").as_bytes())
+        .with_context(|| format!("writing {}", path.display()))?;
     eprintln!("wrote {}", path.display());
     Ok(())
 }

@@ -77,9 +77,9 @@ impl HdrLog {
         &self.buf
     }
 
-    /// Write the log to `path`.
+    /// Write the log to `path` (never through a link planted there).
     pub fn save(&self, path: &Path) -> std::io::Result<()> {
-        std::fs::write(path, &self.buf)
+        crate::rt::files::replace_file(path, &self.buf)
     }
 }
 

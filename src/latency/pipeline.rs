@@ -180,11 +180,11 @@ pub fn measure(
         + pcfg.stages.control.budget_ns();
     // Run long enough for start-up, warm-up, the window and a margin.
     let run_s = warmup.as_secs_f64() + cfg.duration.as_secs_f64() + 2.0;
-    let report = std::env::temp_dir().join(format!(
-        "beliefbus-jitter-{}-{}.json",
-        std::process::id(),
-        now_ns()
-    ));
+    // The child's report goes to a private directory of ours: a name in
+    // /tmp that another user can predict is a name they can plant a link at.
+    let scratch = crate::rt::files::PrivateDir::create("beliefbus-jitter.")
+        .map_err(|e| LatencyError::Spawn(format!("cannot create a private directory: {e}")))?;
+    let report = scratch.path().join("run-report.json");
     let mut cmd = Command::new(&cfg.exe);
     cmd.arg("run")
         .arg(&cfg.config)

@@ -111,11 +111,18 @@ fn draw_err(e: impl std::fmt::Debug, path: &Path) -> LatencyError {
     }
 }
 
-/// Draw `rows` under `title` into the SVG file `path`.
+/// Draw `rows` under `title` into the SVG file `path` (drawn in memory,
+/// then put in place by [`crate::rt::files::replace_file`]).
 pub fn write_svg(path: &Path, title: &str, rows: &[Row]) -> Result<(), LatencyError> {
+    let mut svg = String::new();
+    draw_svg(&mut svg, path, title, rows)?;
+    crate::rt::files::replace_file(path, svg.as_bytes()).map_err(|e| draw_err(e, path))
+}
+
+fn draw_svg(svg: &mut String, path: &Path, title: &str, rows: &[Row]) -> Result<(), LatencyError> {
     let n = rows.len().max(1);
     let height = 50 + 300 * n as u32;
-    let root = SVGBackend::new(path, (1200, height)).into_drawing_area();
+    let root = SVGBackend::with_string(svg, (1200, height)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| draw_err(e, path))?;
     let root = root
         .titled(title, ("sans-serif", 22))

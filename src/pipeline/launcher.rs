@@ -37,11 +37,12 @@ use super::monitor::Monitor;
 use super::report::{ReportInput, StageEnd};
 use super::stage_main::BUILD_ID;
 use super::supervisor::{Chaos, Death, Decision, GiveUpReason, RestartState};
-use super::supervisor_resume::{Resume, ResumeBelief, ResumeControl, ResumeTruth, StateDir};
+use super::supervisor_resume::{Resume, ResumeBelief, ResumeControl, ResumeTruth};
 use super::supervisor_timeline::{Sample, Timeline};
 use super::PipelineConfig;
 use crate::ipc::{self, cleanup, Bus, BusConfig, Hop, StageKind};
 use crate::rt::clock::now_ns;
+use crate::rt::files::{self, PrivateDir};
 use anyhow::{bail, Context, Result};
 use serde_json::{json, Value};
 use std::os::unix::process::{CommandExt, ExitStatusExt};
@@ -84,6 +85,9 @@ pub struct RunOptions {
     pub chaos_seed: Option<u64>,
     /// Stages chaos may kill (empty: every stage the launcher started).
     pub chaos_stages: Vec<StageKind>,
+    /// `--chaos-spin STAGE:SECONDS`: that stage's first incarnation
+    /// busy-loops from then on ([`crate::rt::sched::SPIN_AFTER_ENV`]).
+    pub chaos_spin: Option<(StageKind, f64)>,
     /// `--timeline FILE`: one JSON line per period (RSS, shm, latency).
     pub timeline: Option<PathBuf>,
     /// Period of the timeline samples (s; 0: no timeline).
@@ -212,7 +216,8 @@ fn spawn(
     };
     let path = state_dir.join(format!("{}.resume.json", kind.name()));
     first.save(&path)?;
-    let child = spawn_child(kind, opts, prefix, notes, Some(&path))?;
+    let spin = opts.chaos_spin.filter(|(k, _)| *k == kind).map(|(_, t)| t);
+    let child = spawn_child(kind, opts, prefix, notes, Some(&path), spin)?;
     eprintln!("supervisor: started {} (pid {})", kind.name(), child.id());
     Ok(Stage {
         kind,
@@ -238,6 +243,7 @@ fn spawn_child(
     prefix: &str,
     notes: &mut Vec<String>,
     resume: Option<&Path>,
+    spin_after_s: Option<f64>,
 ) -> Result<Child> {
     let builtin = opts.registry.as_ref().is_none_or(|r| r.is_builtin());
     let (mut cmd, own) = stage_command(kind, builtin)?;
@@ -260,6 +266,10 @@ fn spawn_child(
     // The stages admit samples on internal channels only from processes
     // whose parent is this launcher (ipc::trust).
     cmd.env(ipc::trust::LAUNCHER_PID_ENV, std::process::id().to_string());
+    match spin_after_s {
+        Some(t) => cmd.env(crate::rt::sched::SPIN_AFTER_ENV, format!("{t}")),
+        None => cmd.env_remove(crate::rt::sched::SPIN_AFTER_ENV),
+    };
     // Own process group: a terminal's Ctrl-C reaches only the launcher, which
     // stops the stages in order. Parent-death signal: if the launcher dies,
     // the stages stop too (and release their shared memory).
@@ -316,6 +326,53 @@ impl Stage {
         }
         false
     }
+}
+
+/// SIGKILL the hung stage `i` and reap it. A stage that cannot die in
+/// [`KILL_REAP_TIMEOUT`] is starved by a real-time stage of higher priority
+/// on its core (a runaway that never blocks): escalate by killing that one,
+/// the highest-priority such stage first, and reap again. Only when nothing
+/// is left to blame does the run end.
+fn kill_hung(cfg: &PipelineConfig, stages: &mut [Stage], i: usize) -> Result<()> {
+    if stages[i].kill_and_reap() {
+        return Ok(());
+    }
+    let rt = |k: StageKind| cfg.stages.get(k).rt();
+    let mine = rt(stages[i].kind);
+    let prio = |k: StageKind| rt(k).fifo_priority.unwrap_or(0);
+    let mut starvers: Vec<usize> = (0..stages.len())
+        .filter(|&j| j != i && stages[j].child.is_some())
+        .filter(|&j| {
+            let o = rt(stages[j].kind);
+            o.core == mine.core && prio(stages[j].kind) > prio(stages[i].kind)
+        })
+        .collect();
+    starvers.sort_by_key(|&j| std::cmp::Reverse(prio(stages[j].kind)));
+    for j in starvers {
+        eprintln!(
+            "supervisor: {} (pid {}) cannot die: killing {} (pid {}, FIFO {} on its core), \
+             which starves it",
+            stages[i].kind.name(),
+            stages[i].pid,
+            stages[j].kind.name(),
+            stages[j].pid,
+            prio(stages[j].kind)
+        );
+        stages[j].hung = true;
+        let killed = stages[j].kill_and_reap();
+        if stages[i].kill_and_reap() {
+            return Ok(());
+        }
+        if !killed {
+            break;
+        }
+    }
+    bail!(
+        "the {} stage (pid {}) did not die within {KILL_REAP_TIMEOUT:?} of SIGKILL, nor after \
+         the real-time stages on its core were killed; ending the run",
+        stages[i].kind.name(),
+        stages[i].pid
+    )
 }
 
 /// Run the pipeline; returns the report JSON.
@@ -397,7 +454,8 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
     print_supervision(&json);
     if let Some(path) = &opts.report {
         let text = serde_json::to_string_pretty(&json).context("serialising the report")?;
-        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
+        files::replace_file(path, (text + "\n").as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
         eprintln!("wrote {}", path.display());
     }
     let failed: Vec<String> = input
@@ -463,6 +521,7 @@ fn supervise(
         },
         "launcher",
     )?;
+    cleanup::check_root(&cleanup::root_path()).map_err(anyhow::Error::msg)?;
     let system = cfg
         .scenario
         .as_ref()
@@ -474,9 +533,12 @@ fn supervise(
     }
     let mut notes = Vec::new();
     let mut stages: Vec<Stage> = Vec::new();
-    let state_path = std::env::temp_dir().join(format!("{prefix}state"));
-    let state = StateDir::create(state_path.clone())
-        .with_context(|| format!("cannot create {}", state_path.display()))?;
+    // Private (0700, a fresh unpredictable name): resume files and refine's
+    // checkpoint are written and read back only there. The run prefix in
+    // the name (it carries the launcher's pid) lets a later run sweep the
+    // directory of a launcher killed before it could remove its own.
+    let state = PrivateDir::create(&format!("{prefix}state."))
+        .context("cannot create the run's private state directory")?;
     let state_dir = state.path().to_path_buf();
     let mut sup = Supervision {
         timeline: Timeline::create(opts.timeline.as_deref())
@@ -718,7 +780,7 @@ fn respawn(ctx: &mut Ctx, mon: &Monitor, s: &mut Stage) -> Result<()> {
     };
     let path = ctx.state_dir.join(format!("{}.resume.json", s.kind.name()));
     resume.save(&path)?;
-    let child = spawn_child(s.kind, ctx.opts, ctx.prefix, ctx.notes, Some(&path))?;
+    let child = spawn_child(s.kind, ctx.opts, ctx.prefix, ctx.notes, Some(&path), None)?;
     s.pid = child.id();
     s.child = Some(child);
     s.exit = None;
@@ -823,7 +885,11 @@ fn drive(
         }
         // Heartbeats: a stage whose last report is overdue hangs.
         let now = Instant::now();
-        for s in stages.iter_mut().filter(|s| s.child.is_some()) {
+        for i in 0..stages.len() {
+            if stages[i].child.is_none() {
+                continue;
+            }
+            let s = &stages[i];
             let (since, limit) = match mon.last_seen(s.kind, s.pid) {
                 Some(t) => (
                     t,
@@ -835,6 +901,7 @@ fn drive(
                 None => (s.started, START_TIMEOUT),
             };
             if now.duration_since(since) > limit {
+                let s = &mut stages[i];
                 s.heartbeat_misses += 1;
                 eprintln!(
                     "supervisor: {} (pid {}) missed its heartbeat deadline ({:.0} ms without a report); killing it",
@@ -843,15 +910,12 @@ fn drive(
                     limit.as_secs_f64() * 1e3
                 );
                 s.hung = true;
-                if !s.kill_and_reap() {
-                    bail!(
-                        "the {} stage (pid {}) did not die within {KILL_REAP_TIMEOUT:?} of \
-                         SIGKILL (starved by a real-time stage on its core?); ending the run",
-                        s.kind.name(),
-                        s.pid
-                    );
+                kill_hung(cfg, stages, i)?;
+                for j in 0..stages.len() {
+                    if stages[j].restart_at.is_none() && stages[j].poll_exit() {
+                        on_death(ctx, mon, &mut stages[j])?;
+                    }
                 }
-                on_death(ctx, mon, s)?;
             }
         }
         // Restarts that are due.

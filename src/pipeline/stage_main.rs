@@ -118,6 +118,9 @@ where
     for w in &rt.warnings {
         eprintln!("warning: {w}");
     }
+    if let Some(t) = crate::rt::sched::spin_after_from_env() {
+        eprintln!("{name}: fault injection: will busy-loop {t} s from now (--chaos-spin)");
+    }
     let id = StageIdentity::this_process(kind, &rt);
     let code = match run_stage_with(&cfg.bus(), &cfg, id, &MonotonicClock, stop, &resume) {
         Ok(_) => 0,

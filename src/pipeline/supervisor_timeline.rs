@@ -107,7 +107,7 @@ impl Timeline {
     pub fn create(path: Option<&Path>) -> std::io::Result<Self> {
         Ok(Self {
             samples: Vec::new(),
-            file: path.map(std::fs::File::create).transpose()?,
+            file: path.map(crate::rt::files::create_no_follow).transpose()?,
         })
     }
 

@@ -1,10 +1,12 @@
 //! Real-time plumbing: the CLOCK_MONOTONIC clock every process shares,
 //! allocation-free latency/compute histograms, per-stage budgets and
 //! deadline-miss accounting, core affinity, scheduling priority and memory
-//! locking (each with a one-line warning and a fallback when not permitted).
+//! locking (each with a one-line warning and a fallback when not permitted),
+//! and the rules for every file a run writes (`files`).
 
 pub mod budget;
 pub mod clock;
+pub mod files;
 pub mod hist;
 pub mod sched;
 

@@ -5,7 +5,18 @@
 //!   so pinning the thread pins the process);
 //! - SCHED_FIFO at the configured priority, else SCHED_OTHER at the
 //!   configured nice value (else unchanged);
-//! - `mlockall(MCL_CURRENT | MCL_FUTURE)`, else page faults stay possible.
+//! - memory locking, once the stage has allocated what it needs (its first
+//!   statistics report): `mlockall(MCL_CURRENT)` if what is mapped then is
+//!   at most [`mlock_cap`], else a warning ([`lock_current_memory`]) — a
+//!   config that sizes a stage large cannot lock gigabytes.
+//!
+//! A SCHED_FIFO process that never blocks owns its core: lower-priority
+//! stages there get no CPU, not even to die of a SIGKILL. So every FIFO
+//! stage also gets `RLIMIT_RTTIME` ([`RT_CPU_SOFT`], [`RT_CPU_HARD`]): the
+//! kernel signals a real-time task that has run that long without
+//! blocking. Our stages block on every message, so only a runaway reaches
+//! it; it then exits with [`RT_CPU_EXIT`] (SIGXCPU handler) and the
+//! supervisor restarts it like any failed stage.
 
 use serde::{Deserialize, Serialize};
 
@@ -23,9 +34,90 @@ pub struct RtSettings {
     /// SCHED_FIFO is refused).
     #[serde(default)]
     pub nice: i32,
-    /// Lock all current and future memory (no page faults on the hot path).
+    /// Lock the stage's memory once it is set up (no page faults on the
+    /// hot path), if it is at most [`mlock_cap`].
     #[serde(default)]
     pub mlock: bool,
+}
+
+/// Real-time CPU a FIFO stage may use without blocking before the kernel
+/// sends SIGXCPU (the stage then exits with [`RT_CPU_EXIT`]).
+pub const RT_CPU_SOFT: std::time::Duration = std::time::Duration::from_secs(2);
+/// ... and before it sends SIGKILL, should the SIGXCPU handler not run.
+pub const RT_CPU_HARD: std::time::Duration = std::time::Duration::from_secs(3);
+/// Exit status of a stage stopped by its real-time CPU limit.
+pub const RT_CPU_EXIT: i32 = 71;
+
+extern "C" fn on_sigxcpu(_: libc::c_int) {
+    // SAFETY: _exit is async-signal-safe.
+    unsafe { libc::_exit(RT_CPU_EXIT) }
+}
+
+/// Bound the real-time CPU the calling process may use without blocking
+/// (`RLIMIT_RTTIME`), exiting with [`RT_CPU_EXIT`] at the soft limit.
+pub fn limit_rt_cpu(soft: std::time::Duration, hard: std::time::Duration) -> Result<(), String> {
+    let lim = libc::rlimit {
+        rlim_cur: soft.as_micros() as libc::rlim_t,
+        rlim_max: hard.as_micros().max(soft.as_micros()) as libc::rlim_t,
+    };
+    // SAFETY: a plain handler that only calls _exit; `sa` is fully
+    // initialised (zeroed, then the handler and an empty mask).
+    let r = unsafe {
+        let mut sa: libc::sigaction = std::mem::zeroed();
+        sa.sa_sigaction = on_sigxcpu as *const () as libc::sighandler_t;
+        libc::sigemptyset(&mut sa.sa_mask);
+        libc::sigaction(libc::SIGXCPU, &sa, std::ptr::null_mut())
+    };
+    if r != 0 {
+        return Err(os_err());
+    }
+    // SAFETY: setrlimit on ourselves with a valid struct.
+    if unsafe { libc::setrlimit(libc::RLIMIT_RTTIME, &lim) } != 0 {
+        return Err(os_err());
+    }
+    Ok(())
+}
+
+/// Fault injection (`beliefbus run --chaos-spin STAGE:SECONDS`): a stage
+/// started with this variable set to a number of seconds busy-loops from
+/// then on, as a runaway would ([`spin_after_from_env`]).
+pub const SPIN_AFTER_ENV: &str = "BELIEFBUS_CHAOS_SPIN_AFTER_S";
+
+extern "C" fn spin_forever(_: libc::c_int) {
+    loop {
+        std::hint::spin_loop();
+    }
+}
+
+/// Arm the runaway fault of [`SPIN_AFTER_ENV`], if set: a one-shot timer
+/// whose handler never returns, so the main thread stops blocking and
+/// spins at its scheduling priority. Returns the delay armed.
+pub fn spin_after_from_env() -> Option<f64> {
+    let t: f64 = std::env::var(SPIN_AFTER_ENV).ok()?.parse().ok()?;
+    if !(t.is_finite() && t >= 0.0) {
+        return None;
+    }
+    let secs = t.floor();
+    let it = libc::itimerval {
+        it_interval: libc::timeval {
+            tv_sec: 0,
+            tv_usec: 0,
+        },
+        it_value: libc::timeval {
+            tv_sec: secs as libc::time_t,
+            tv_usec: (((t - secs) * 1e6) as libc::suseconds_t).max(1),
+        },
+    };
+    // SAFETY: the handler only spins; `sa` is fully initialised; setitimer
+    // with valid structs.
+    unsafe {
+        let mut sa: libc::sigaction = std::mem::zeroed();
+        sa.sa_sigaction = spin_forever as *const () as libc::sighandler_t;
+        libc::sigemptyset(&mut sa.sa_mask);
+        libc::sigaction(libc::SIGALRM, &sa, std::ptr::null_mut());
+        libc::setitimer(libc::ITIMER_REAL, &it, std::ptr::null_mut());
+    }
+    Some(t)
 }
 
 /// What was actually applied.
@@ -35,10 +127,13 @@ pub struct RtApplied {
     pub core: Option<usize>,
     /// Running under SCHED_FIFO.
     pub fifo: bool,
+    /// `RLIMIT_RTTIME` set (with `fifo`).
+    pub rt_cpu_limited: bool,
     /// Nice value in effect (SCHED_OTHER).
     pub nice: Option<i32>,
-    /// mlockall succeeded.
-    pub mlocked: bool,
+    /// Locking was asked for: the stage locks its memory at its first
+    /// report, up to this many bytes ([`lock_current_memory`]).
+    pub mlock_cap: Option<u64>,
     /// One line per refused setting, saying what fallback is in effect.
     pub warnings: Vec<String>,
 }
@@ -106,12 +201,58 @@ pub fn set_nice(nice: i32) -> Result<(), String> {
     }
 }
 
-/// Lock current and future memory.
-pub fn lock_memory() -> Result<(), String> {
+/// The machine's physical memory (bytes).
+pub fn physical_memory() -> u64 {
+    // SAFETY: sysconf has no preconditions.
+    let (pages, size) = unsafe {
+        (
+            libc::sysconf(libc::_SC_PHYS_PAGES),
+            libc::sysconf(libc::_SC_PAGESIZE),
+        )
+    };
+    if pages > 0 && size > 0 {
+        (pages as u64).saturating_mul(size as u64)
+    } else {
+        // Unknown: assume a small machine.
+        1 << 30
+    }
+}
+
+/// The most memory one stage locks: 1/16 of physical memory.
+pub fn mlock_cap() -> u64 {
+    physical_memory() / 16
+}
+
+/// Bytes mapped by this process (`VmSize`), what `MCL_CURRENT` would lock.
+pub fn mapped_bytes() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kb: u64 = s
+        .lines()
+        .find_map(|l| l.strip_prefix("VmSize:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb * 1024)
+}
+
+/// Lock every page mapped now — after the stage allocated its buffers, so
+/// the hot path takes no page fault — if they total at most `cap` bytes;
+/// returns the bytes locked. Later mappings are not locked (MCL_FUTURE
+/// would lock any later growth, unbounded).
+pub fn lock_current_memory(cap: u64) -> Result<u64, String> {
+    let mapped = mapped_bytes().ok_or("cannot read VmSize from /proc/self/status")?;
+    if mapped > cap {
+        return Err(format!(
+            "{} MiB mapped is above the cap of {} MiB (1/16 of physical memory)",
+            mapped >> 20,
+            cap >> 20
+        ));
+    }
     // SAFETY: mlockall has no memory-safety preconditions.
-    let r = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
-    if r == 0 {
-        Ok(())
+    if unsafe { libc::mlockall(libc::MCL_CURRENT) } == 0 {
+        Ok(mapped)
     } else {
         Err(os_err())
     }
@@ -138,6 +279,14 @@ pub fn apply(who: &str, s: &RtSettings) -> RtApplied {
             )),
         }
     }
+    if a.fifo {
+        match limit_rt_cpu(RT_CPU_SOFT, RT_CPU_HARD) {
+            Ok(()) => a.rt_cpu_limited = true,
+            Err(e) => a.warnings.push(format!(
+                "{who}: cannot set RLIMIT_RTTIME ({e}); a runaway would own its core"
+            )),
+        }
+    }
     if !a.fifo && s.nice != 0 {
         match set_nice(s.nice) {
             Ok(()) => a.nice = Some(s.nice),
@@ -148,12 +297,7 @@ pub fn apply(who: &str, s: &RtSettings) -> RtApplied {
         }
     }
     if s.mlock {
-        match lock_memory() {
-            Ok(()) => a.mlocked = true,
-            Err(e) => a.warnings.push(format!(
-                "{who}: mlockall not permitted ({e}); memory may page"
-            )),
-        }
+        a.mlock_cap = Some(mlock_cap());
     }
     a
 }
@@ -194,6 +338,38 @@ mod tests {
         })
         .join()
         .unwrap();
+    }
+
+    #[test]
+    fn a_runaway_real_time_thread_is_stopped_by_its_cpu_limit() {
+        // In a child process: the limit and the handler are process-wide.
+        // SAFETY: fork in a test; the child only calls async-signal-safe
+        // functions and spins, the parent waits for it.
+        let pid = unsafe { libc::fork() };
+        assert!(pid >= 0);
+        if pid == 0 {
+            if set_fifo(1).is_err() {
+                // SAFETY: _exit in the forked child.
+                unsafe { libc::_exit(99) };
+            }
+            let short = std::time::Duration::from_millis(200);
+            if limit_rt_cpu(short, short * 3).is_err() {
+                // SAFETY: as above.
+                unsafe { libc::_exit(98) };
+            }
+            loop {
+                std::hint::spin_loop();
+            }
+        }
+        let mut status = 0;
+        // SAFETY: waitpid on our own child.
+        unsafe { libc::waitpid(pid, &mut status, 0) };
+        let code = libc::WIFEXITED(status).then(|| libc::WEXITSTATUS(status));
+        if code == Some(99) {
+            eprintln!("SKIPPED: SCHED_FIFO not permitted here, RLIMIT_RTTIME not exercised");
+            return;
+        }
+        assert_eq!(code, Some(RT_CPU_EXIT), "raw status {status}");
     }
 
     #[test]

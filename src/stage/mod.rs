@@ -70,6 +70,9 @@ pub struct StageIdentity {
     pub core: Option<usize>,
     /// [`stats_flags`] bits (FIFO, MLOCKED).
     pub flags: u32,
+    /// Lock memory at the first report, up to this many bytes
+    /// ([`crate::rt::sched::lock_current_memory`]).
+    pub mlock_cap: Option<u64>,
 }
 
 impl StageIdentity {
@@ -79,14 +82,12 @@ impl StageIdentity {
         if rt.fifo {
             flags |= stats_flags::FIFO;
         }
-        if rt.mlocked {
-            flags |= stats_flags::MLOCKED;
-        }
         Self {
             kind,
             pid: std::process::id(),
             core: rt.core,
             flags,
+            mlock_cap: rt.mlock_cap,
         }
     }
 
@@ -376,13 +377,23 @@ impl StatsPort {
         &self.id
     }
 
-    /// Publish now; `last` marks the final report.
+    /// Publish now; `last` marks the final report. The first report says
+    /// the stage is set up: its memory is locked then, if asked for.
     pub fn publish(
         &mut self,
         m: &Metrics,
         now_ns: u64,
         last: bool,
     ) -> Result<StageStats, IpcError> {
+        if let Some(cap) = self.id.mlock_cap.take() {
+            match crate::rt::sched::lock_current_memory(cap) {
+                Ok(_) => self.id.flags |= stats_flags::MLOCKED,
+                Err(e) => eprintln!(
+                    "warning: {}: memory not locked ({e}); it may page",
+                    self.id.kind.name()
+                ),
+            }
+        }
         let mut s = m.to_stats(&self.id);
         s.header.seq = self.seq;
         s.header.t_valid_ns = now_ns;

@@ -12,13 +12,20 @@
 //!   comes from the belief channel's history (the filter is alive);
 //! - plant: the last truth — the simulation continues from that true state
 //!   and the channel's numbering continues (docs/sensor-abi.md rule 2);
-//! - any stage (refine's chain snapshots, issue 4): [`Resume::state_dir`] is
-//!   a per-run directory that outlives a stage's incarnations; a stage may
-//!   checkpoint there ([`Resume::write_checkpoint`], atomic rename) and read
-//!   it back after a restart ([`Resume::read_checkpoint`]). The directory is
-//!   removed at the end of the run.
+//! - any stage (refine's chain snapshots): [`Resume::state_dir`] is the
+//!   run's private directory ([`crate::rt::files::PrivateDir`]: fresh, 0700)
+//!   that outlives a stage's incarnations; a stage may checkpoint there
+//!   ([`Resume::write_checkpoint`], atomic rename) and read it back after a
+//!   restart ([`Resume::read_checkpoint`]). The directory is removed at the
+//!   end of the run.
+//!
+//! A resume file is honoured only from such a directory: [`Resume::load`]
+//! refuses a file whose directory is not this user's and private, or that
+//! is a link, and the state directory is the file's own directory — never a
+//! path read from the file, which could send a checkpoint anywhere.
 
 use crate::ipc::{Belief, Control, StageKind, Truth};
+use crate::rt::files;
 use crate::{MAX_STATE, MAX_STATE as D};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -55,7 +62,9 @@ pub struct ResumeTruth {
 pub struct Resume {
     /// Restarts of this stage before this incarnation.
     pub restarts: u32,
-    /// Per-run directory for checkpoints (none outside the launcher).
+    /// Per-run directory for checkpoints (none outside the launcher): the
+    /// directory the resume file was loaded from, never a field of the file.
+    #[serde(skip)]
     pub state_dir: Option<PathBuf>,
     pub belief: Option<ResumeBelief>,
     pub control: Option<ResumeControl>,
@@ -126,23 +135,32 @@ pub enum ResumeError {
 }
 
 impl Resume {
-    /// Load a resume file.
+    #[cfg(test)]
+    fn default_json() -> String {
+        serde_json::to_string(&Self::default()).unwrap()
+    }
+
+    /// Load a resume file from a private directory of this user
+    /// ([`files::read_private`]); that directory becomes the state directory.
     pub fn load(path: &Path) -> Result<Self, ResumeError> {
         let err = |e: &dyn std::fmt::Display| ResumeError::Read {
             path: path.display().to_string(),
             reason: e.to_string(),
         };
-        let text = std::fs::read_to_string(path).map_err(|e| err(&e))?;
-        serde_json::from_str(&text).map_err(|e| err(&e))
+        let bytes = files::read_private(path).map_err(|e| err(&e))?;
+        let mut r: Self = serde_json::from_slice(&bytes).map_err(|e| err(&e))?;
+        r.state_dir = path.parent().map(Path::to_path_buf);
+        Ok(r)
     }
 
-    /// Write it to `path` (atomically: temporary file, then rename).
+    /// Write it to `path` in a private directory (atomically: a fresh
+    /// temporary, then rename).
     pub fn save(&self, path: &Path) -> Result<(), ResumeError> {
         let text = serde_json::to_string(self).map_err(|e| ResumeError::Write {
             path: path.display().to_string(),
             reason: e.to_string(),
         })?;
-        atomic_write(path, text.as_bytes())
+        write(path, text.as_bytes())
     }
 
     /// The checkpoint file of `kind` in the state directory.
@@ -155,48 +173,22 @@ impl Resume {
     /// Save a checkpoint of `kind` (no-op without a state directory).
     pub fn write_checkpoint(&self, kind: StageKind, bytes: &[u8]) -> Result<(), ResumeError> {
         match self.checkpoint_path(kind) {
-            Some(p) => atomic_write(&p, bytes),
+            Some(p) => write(&p, bytes),
             None => Ok(()),
         }
     }
 
     /// The last checkpoint of `kind`, if any.
     pub fn read_checkpoint(&self, kind: StageKind) -> Option<Vec<u8>> {
-        std::fs::read(self.checkpoint_path(kind)?).ok()
+        files::read_private(&self.checkpoint_path(kind)?).ok()
     }
 }
 
-/// The run's state directory (resume files, refine's chain checkpoint):
-/// removed with everything in it when dropped, so no run — ending normally
-/// or on an early error — leaves it behind.
-pub struct StateDir(PathBuf);
-
-impl StateDir {
-    /// Create `path` (and its parents).
-    pub fn create(path: PathBuf) -> std::io::Result<Self> {
-        std::fs::create_dir_all(&path)?;
-        Ok(Self(path))
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for StateDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-fn atomic_write(path: &Path, bytes: &[u8]) -> Result<(), ResumeError> {
-    let tmp = path.with_extension("tmp");
-    let err = |e: std::io::Error| ResumeError::Write {
+fn write(path: &Path, bytes: &[u8]) -> Result<(), ResumeError> {
+    files::write_private(path, bytes).map_err(|e| ResumeError::Write {
         path: path.display().to_string(),
         reason: e.to_string(),
-    };
-    std::fs::write(&tmp, bytes).map_err(err)?;
-    std::fs::rename(&tmp, path).map_err(err)
+    })
 }
 
 #[cfg(test)]
@@ -211,8 +203,8 @@ mod tests {
         b.set_gaussian(&g);
         b.header.seq = 41;
         b.header.t_valid_ns = 123;
-        let dir = std::env::temp_dir().join(format!("bb-resume-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp = files::PrivateDir::create("bb-resume-").unwrap();
+        let dir = tmp.path().to_path_buf();
         let r = Resume {
             restarts: 2,
             state_dir: Some(dir.clone()),
@@ -231,7 +223,33 @@ mod tests {
             Some(&b"chain v3"[..])
         );
         assert_eq!(back.read_checkpoint(StageKind::Filter), None);
-        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn the_state_dir_is_where_the_file_is_never_what_it_says() {
+        let tmp = files::PrivateDir::create("bb-resume-").unwrap();
+        let path = tmp.path().join("refine.resume.json");
+        let text = r#"{"restarts":1,"state_dir":"/etc","belief":null,"control":null,"truth":null}"#;
+        files::write_private(&path, text.as_bytes()).unwrap();
+        let r = Resume::load(&path).unwrap();
+        assert_eq!(r.state_dir.as_deref(), Some(tmp.path()));
+        assert_eq!(
+            r.checkpoint_path(StageKind::Refine).unwrap(),
+            tmp.path().join("refine.ckpt")
+        );
+    }
+
+    #[test]
+    fn a_resume_file_outside_a_private_directory_is_refused() {
+        let tmp = files::PrivateDir::create("bb-resume-").unwrap();
+        let open = tmp.path().join("open");
+        std::fs::create_dir(&open).unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&open, std::fs::Permissions::from_mode(0o777)).unwrap();
+        let path = open.join("filter.resume.json");
+        std::fs::write(&path, Resume::default_json()).unwrap();
+        let e = Resume::load(&path).unwrap_err().to_string();
+        assert!(e.contains("0700"), "{e}");
     }
 
     #[test]
