@@ -20,6 +20,9 @@
 //! capability asks [`System`] for it and the config reports a missing one
 //! at validation, naming the scenario and the capability.
 
+// The core modules under the names the scenario code uses.
+use beliefbus_core::{model, rng};
+
 pub mod builtin;
 pub mod handle;
 pub mod registry;
@@ -30,7 +33,7 @@ pub use registry::{Registry, ScenarioInfo};
 use crate::model::discrete::em_integrate;
 use crate::model::{simulate_observation, SdeModel};
 use crate::rng::SimRng;
-use crate::{MAX_CONTROL, MAX_STATE};
+use beliefbus_core::{MAX_CONTROL, MAX_STATE};
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 

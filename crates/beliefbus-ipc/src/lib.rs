@@ -19,6 +19,11 @@
 //!   ([`run_loop`]); [`WakeMode::SpinThenBlock`] polls for a bounded time
 //!   before blocking, for the latency-critical path.
 
+// The lower layers under the names the ipc code uses.
+use beliefbus_core::{belief, rng};
+use beliefbus_core::{MAX_CONTROL, MAX_OBS, MAX_STATE};
+use beliefbus_rt as rt;
+
 pub mod cleanup;
 pub mod control_check;
 pub mod messages;
