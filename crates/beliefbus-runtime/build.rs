@@ -1,6 +1,11 @@
 //! Build fingerprint: a hash of the sources every binary is built from, so
 //! the launcher can tell whether the stage executables next to it were built
 //! from the same code as itself (`cargo run` rebuilds only `beliefbus`).
+//!
+//! It lives in this crate because the launcher and the stages' `--build-id`
+//! (`pipeline::stage_main::BUILD_ID`) are here, but it hashes the whole
+//! workspace: every crate and the root package's sources and binaries go
+//! into each executable.
 
 use std::hash::Hasher;
 use std::path::{Path, PathBuf};
@@ -20,14 +25,16 @@ fn files(dir: &Path, out: &mut Vec<PathBuf>) {
 }
 
 fn main() {
-    let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
+    // The workspace root: this crate is crates/beliefbus-runtime.
+    let manifest = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
+    let root = manifest.join("../..");
     let mut all = Vec::new();
-    for d in ["src", "processes"] {
+    for d in ["src", "processes", "crates"] {
         files(&root.join(d), &mut all);
-        println!("cargo:rerun-if-changed={d}");
+        println!("cargo:rerun-if-changed=../../{d}");
     }
     all.push(root.join("Cargo.toml"));
-    println!("cargo:rerun-if-changed=Cargo.toml");
+    println!("cargo:rerun-if-changed=../../Cargo.toml");
     all.sort();
     // FNV-1a over paths and contents (std's SipHash with fixed keys would do
     // too; FNV is simple and stable across Rust versions).

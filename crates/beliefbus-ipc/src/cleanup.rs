@@ -232,7 +232,7 @@ pub fn sweep_stale_runs() -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ipc::{Belief, Bus, BusConfig};
+    use crate::{Belief, Bus, BusConfig};
 
     #[test]
     fn state_dirs_of_dead_launchers_are_swept_and_live_ones_kept() {
@@ -256,7 +256,7 @@ mod tests {
         let a = run_prefix();
         let b = run_prefix();
         assert_ne!(a, b);
-        crate::ipc::validate_prefix(&a).unwrap();
+        crate::validate_prefix(&a).unwrap();
         assert_eq!(run_prefix_pid(&a), Some(std::process::id()));
         assert_eq!(run_prefix_pid("iox2_bb3f00_"), None);
     }

@@ -19,6 +19,7 @@
 //! | `stats`   | [`StageStats`]   | `beliefbus.StageStats.v3`     |
 
 use crate::belief::Gaussian;
+use crate::rt::LatencyHist;
 use crate::{MAX_CONTROL, MAX_OBS, MAX_STATE};
 use iceoryx2::prelude::ZeroCopySend;
 
@@ -184,7 +185,7 @@ impl SensorSample {
     /// `dim` is always `values.len()`: values beyond [`SENSOR_MAX_DIM`] do
     /// not fit and are not copied, but `dim` still says how many there were,
     /// so ingest rejects the sample as a wrong dimension instead of filtering
-    /// a silently truncated one. Use [`crate::ipc::sensor_api::SensorPublisher`]
+    /// a silently truncated one. Use [`crate::sensor_api::SensorPublisher`]
     /// for a typed error before sending.
     pub fn new(channel: u32, seq: u64, t_meas_ns: u64, values: &[f64]) -> Self {
         let n = values.len().min(SENSOR_MAX_DIM);
@@ -426,6 +427,20 @@ pub struct Percentiles {
     pub max_ns: u64,
 }
 
+impl From<&LatencyHist> for Percentiles {
+    /// Count, p50, p90, p99, p99.9 and max of `h` (all 0 when empty).
+    fn from(h: &LatencyHist) -> Self {
+        Percentiles {
+            count: h.count(),
+            p50_ns: h.quantile(0.5),
+            p90_ns: h.quantile(0.9),
+            p99_ns: h.quantile(0.99),
+            p999_ns: h.quantile(0.999),
+            max_ns: h.max(),
+        }
+    }
+}
+
 /// One hop's percentiles inside [`StageStats`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
@@ -642,6 +657,30 @@ impl StageStats {
 mod tests {
     use super::*;
     use core::mem::{align_of, offset_of, size_of};
+
+    #[test]
+    fn percentiles_of_a_histogram() {
+        assert_eq!(
+            Percentiles::from(&LatencyHist::new()),
+            Percentiles::default()
+        );
+        let mut h = LatencyHist::new();
+        for v in 1..=10_000u64 {
+            h.record(v * 1_000); // 1 µs … 10 ms
+        }
+        let p = Percentiles::from(&h);
+        assert_eq!(p.count, 10_000);
+        // 3 significant digits: relative error ≤ 0.1 %.
+        for (got, want) in [
+            (p.p50_ns, 5_000_000.0),
+            (p.p90_ns, 9_000_000.0),
+            (p.p99_ns, 9_900_000.0),
+            (p.p999_ns, 9_990_000.0),
+            (p.max_ns, 10_000_000.0),
+        ] {
+            assert!((got as f64 - want).abs() / want < 1e-3, "{got} vs {want}");
+        }
+    }
 
     // Sensor ABI v1 is a published contract: these fail at compile time if the
     // layout drifts.

@@ -476,7 +476,7 @@ impl<M: Message> Subscriber<M> {
 
 #[cfg(test)]
 mod stash_tests {
-    use crate::ipc::{cleanup, Bus, BusConfig, Observation};
+    use crate::{cleanup, Bus, BusConfig, Observation};
 
     #[test]
     fn a_polled_message_is_received_first_and_counted_as_waiting() {

@@ -465,7 +465,7 @@ impl ControlSubscriber {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ipc::cleanup;
+    use crate::cleanup;
 
     /// A fresh prefix, removed when dropped.
     struct Prefix(String);

@@ -352,7 +352,7 @@ impl Bus {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ipc::{cleanup, BusConfig};
+    use crate::{cleanup, BusConfig};
 
     fn bus_cfg() -> BusConfig {
         BusConfig {
@@ -397,7 +397,7 @@ mod tests {
 
     #[test]
     fn a_slice_wakes_a_run_loop() {
-        use crate::ipc::{run_loop, Wake, WakeMode};
+        use crate::{run_loop, Wake, WakeMode};
         use std::ops::ControlFlow;
         use std::sync::atomic::AtomicBool;
         use std::time::Duration;

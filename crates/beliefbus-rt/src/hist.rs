@@ -2,7 +2,6 @@
 //! 1 ns … 100 s). The counts array is allocated once at construction, so
 //! recording never allocates; values beyond the range saturate.
 
-use crate::ipc::Percentiles;
 use hdrhistogram::Histogram;
 
 /// Highest trackable value: 100 s in ns.
@@ -57,18 +56,6 @@ impl LatencyHist {
         }
     }
 
-    /// Count, p50, p90, p99, p99.9 and max.
-    pub fn percentiles(&self) -> Percentiles {
-        Percentiles {
-            count: self.count(),
-            p50_ns: self.quantile(0.5),
-            p90_ns: self.quantile(0.9),
-            p99_ns: self.quantile(0.99),
-            p999_ns: self.quantile(0.999),
-            max_ns: self.max(),
-        }
-    }
-
     /// Add another histogram's counts.
     pub fn merge(&mut self, other: &LatencyHist) {
         // Same bounds on both sides, so adding cannot fail.
@@ -96,15 +83,14 @@ mod tests {
         for v in 1..=10_000u64 {
             h.record(v * 1_000); // 1 µs … 10 ms
         }
-        let p = h.percentiles();
-        assert_eq!(p.count, 10_000);
+        assert_eq!(h.count(), 10_000);
         // 3 significant digits: relative error ≤ 0.1 %.
         for (got, want) in [
-            (p.p50_ns, 5_000_000.0),
-            (p.p90_ns, 9_000_000.0),
-            (p.p99_ns, 9_900_000.0),
-            (p.p999_ns, 9_990_000.0),
-            (p.max_ns, 10_000_000.0),
+            (h.quantile(0.5), 5_000_000.0),
+            (h.quantile(0.9), 9_000_000.0),
+            (h.quantile(0.99), 9_900_000.0),
+            (h.quantile(0.999), 9_990_000.0),
+            (h.max(), 10_000_000.0),
         ] {
             assert!((got as f64 - want).abs() / want < 1e-3, "{got} vs {want}");
         }
@@ -113,7 +99,7 @@ mod tests {
     #[test]
     fn empty_and_saturating() {
         let mut h = LatencyHist::new();
-        assert_eq!(h.percentiles(), Percentiles::default());
+        assert_eq!((h.count(), h.quantile(0.5), h.max()), (0, 0, 0));
         h.record(0);
         h.record(u64::MAX);
         assert_eq!(h.count(), 2);

@@ -19,7 +19,7 @@ impl Scenario for ShipScenario {
     const NAME: &'static str = "ship";
     const SUMMARY: &'static str =
         "drifting ship in a walled disc (paper 001 eq. 10-11), range-bearing sensor, force control";
-    const CONFIG: &'static str = include_str!("../../configs/default.toml");
+    const CONFIG: &'static str = include_str!("../../../configs/default.toml");
     fn defaults(ctx: &BuildContext) -> ShipParams {
         ShipParams::paper(ctx.sample_dt)
     }
@@ -79,7 +79,7 @@ impl Scenario for VanDerPolScenario {
     const NAME: &'static str = "vanderpol";
     const SUMMARY: &'static str =
         "Van der Pol oscillator (paper 001 eq. 12), x1 observed, estimation only";
-    const CONFIG: &'static str = include_str!("../../configs/vanderpol.toml");
+    const CONFIG: &'static str = include_str!("../../../configs/vanderpol.toml");
     fn defaults(_ctx: &BuildContext) -> VanDerPolParams {
         VanDerPolParams::default()
     }
@@ -124,7 +124,7 @@ impl System for VanDerPolSystem {
 mod tests {
     use super::*;
     use crate::model::SdeModel;
-    use crate::scenario::Registry;
+    use crate::Registry;
 
     fn build(name: &str) -> std::sync::Arc<dyn System> {
         Registry::builtin()

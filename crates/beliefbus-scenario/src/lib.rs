@@ -33,7 +33,7 @@ pub use registry::{Registry, ScenarioInfo};
 use crate::model::discrete::em_integrate;
 use crate::model::{simulate_observation, SdeModel};
 use crate::rng::SimRng;
-use beliefbus_core::{MAX_CONTROL, MAX_STATE};
+use beliefbus_core::{MAX_CONTROL, MAX_NOISE, MAX_STATE};
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 

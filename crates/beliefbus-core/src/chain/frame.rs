@@ -149,7 +149,7 @@ pub fn build_framed<M: SdeModel + ?Sized>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scenario::handle::tests::{assert_forwarded, call_each, Counting};
+    use crate::model::forwarding_check::{assert_forwarded, call_each, Counting};
 
     #[test]
     fn the_framed_model_forwards_every_override() {

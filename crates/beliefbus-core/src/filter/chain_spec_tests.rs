@@ -77,42 +77,6 @@ fn pilot_spread_matches_the_kalman_posterior_after_an_update() {
 }
 
 #[test]
-fn build_gives_a_filter_with_the_planned_chain_that_tracks_a_linear_model() {
-    // The defaults on an OU process: the filter has the planned δ and
-    // number of states, and on a simulated record its error is within
-    // 10 % of the exact Kalman filter's (independent answer).
-    use crate::experiments::chain_util::{run_filter, simulate};
-    use crate::filter::kalman::Kalman;
-    let model = ou_1d(2.0, 0.6, 0.2, 4.0);
-    let prior = Gaussian::diagonal(&[0.0], &[0.3]);
-    let spec = ou_spec(0.1);
-    let plan = spec.plan(&model, &prior).unwrap();
-    let mut f = spec
-        .build_planned(model.clone(), &prior, 0.0, &plan)
-        .unwrap();
-    assert_eq!(f.chain().len(), plan.states);
-    assert_eq!(f.delta(), plan.delta);
-    let (mut ec, mut ek) = (0.0, 0.0);
-    for r in 0..10 {
-        let mut rng = crate::rng::stream(21, r);
-        let rec = simulate(&model, &[0.1], 0.1, 100, 1e-3, &mut rng);
-        f.reset(0.0, &prior);
-        ec += run_filter(&mut f, &rec, None).mean_error;
-        let mut kf = Kalman::new(model.clone(), &prior, 0.0).unwrap();
-        ek += run_filter(&mut kf, &rec, None).mean_error;
-    }
-    assert!(ec < 1.1 * ek, "chain {ec} vs Kalman {ek}");
-    // states given: no pilot, the given budget
-    let given = ChainFilterSpec {
-        states: Some(300),
-        ..spec
-    };
-    let plan = given.plan(&model, &prior).unwrap();
-    assert_eq!((plan.states, plan.cells), (300, 0));
-    assert!(plan.posterior_std.is_empty());
-}
-
-#[test]
 fn invalid_specs_are_refused_with_the_field_named() {
     let model = ou_1d(1.0, 0.5, 0.2, 4.0);
     let prior = Gaussian::diagonal(&[0.0], &[0.3]);

@@ -515,7 +515,7 @@ pub fn decode_layered<M: SdeModel + ?Sized>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::experiments::decoding::rts_1d;
+    use crate::filter::rts::rts_1d;
     use crate::model::linear::{ou_1d, LinearSde};
     use crate::rng::stream;
     use nalgebra::DMatrix;

@@ -22,6 +22,7 @@ pub mod layered_decoder;
 pub mod live_chain;
 pub mod pf;
 pub mod resample;
+pub mod rts;
 pub mod smoother;
 #[cfg(test)]
 mod step_check_tests;

@@ -21,6 +21,8 @@ pub mod arm;
 pub mod bounds;
 pub mod discrete;
 pub mod double_slit;
+#[cfg(any(test, feature = "test-support"))]
+pub mod forwarding_check;
 pub mod himmelblau;
 pub mod linear;
 pub mod lorenz;

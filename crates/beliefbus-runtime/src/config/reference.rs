@@ -242,7 +242,8 @@ mod tests {
 
     #[test]
     fn the_committed_reference_is_the_codes() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/configuration.md");
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/configuration.md");
         let text = std::fs::read_to_string(&path).unwrap();
         let want = splice(&text, &markdown(&Registry::builtin()))
             .expect("docs/configuration.md lacks the generated-reference markers");
@@ -261,7 +262,7 @@ mod tests {
     #[test]
     fn every_key_of_the_default_config_is_in_the_reference() {
         let r = markdown(&Registry::builtin());
-        let text = include_str!("../../configs/default.toml");
+        let text = include_str!("../../../../configs/default.toml");
         let table: toml::Table = toml::from_str(text).unwrap();
         fn keys(t: &toml::Table, prefix: &str, out: &mut Vec<String>) {
             for (k, v) in t {

@@ -123,7 +123,7 @@ fn syntax_errors_name_the_line() {
 
 #[test]
 fn the_default_config_runs_the_implicit_controller_and_mppi_stays_selectable() {
-    let text = include_str!("../../configs/default.toml");
+    let text = include_str!("../../../../configs/default.toml");
     let c = load_str(text, &[]).unwrap();
     assert_eq!(c.control.backend, ControlBackend::Implicit);
     assert_eq!(c.control.backend.name(), "implicit");

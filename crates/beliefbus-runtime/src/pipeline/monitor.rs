@@ -272,7 +272,7 @@ impl Monitor {
     /// Sensor → output latency percentiles since the previous call (and
     /// reset).
     pub fn take_window(&mut self) -> crate::ipc::Percentiles {
-        let p = self.window.percentiles();
+        let p = crate::ipc::Percentiles::from(&self.window);
         self.window.reset();
         p
     }

@@ -24,8 +24,8 @@ pub mod snapshots;
 use crate::config::{ConfigError, PipelineConfig};
 use crate::ipc::BusConfig;
 use crate::ipc::{
-    stats_flags, Bus, Hop, HopStats, IpcError, Publisher, StageKind, StageStats, Trace,
-    STATS_DROP_REASONS, STATS_HOPS, STATS_REASONS,
+    stats_flags, Bus, Hop, HopStats, IpcError, Percentiles, Publisher, StageKind, StageStats,
+    Trace, STATS_DROP_REASONS, STATS_HOPS, STATS_REASONS,
 };
 use crate::rt::{Budget, Clock, LatencyHist, RtApplied};
 use crate::stage::resume::Resume;
@@ -295,7 +295,7 @@ impl Metrics {
             rejected_by_reason: self.rejected_by_reason,
             deadline_misses: self.budget.misses(),
             budget_ns: self.budget.budget_ns(),
-            compute: self.budget.compute().percentiles(),
+            compute: Percentiles::from(self.budget.compute()),
             controls_received: self.controls_received,
             processed_after_warmup: self.processed_after_warmup,
             mean_goal_distance: if self.goal_distance_count > 0 {
@@ -334,7 +334,7 @@ impl Metrics {
             *slot = HopStats {
                 hop: *hop as u32,
                 reserved: 0,
-                pct: h.percentiles(),
+                pct: Percentiles::from(h),
             };
         }
         s

@@ -212,7 +212,7 @@ mod tests {
 
     fn cfg() -> PipelineConfig {
         load(
-            &Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/default.toml"),
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/default.toml"),
             &[
                 "filter.backend=\"chain\"".into(),
                 // Resuming continues one incremental chain; moving-frame

@@ -19,7 +19,7 @@ fn test_config(sets: &[&str]) -> PipelineConfig {
     let mut all = vec![format!("run.prefix=\"{}\"", cleanup::run_prefix())];
     all.extend(sets.iter().map(|s| s.to_string()));
     load(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/default.toml"),
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/default.toml"),
         &all,
     )
     .unwrap()
