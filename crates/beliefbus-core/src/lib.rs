@@ -1,7 +1,11 @@
 //! beliefbus-core: the algorithms, pure and seeded (no I/O, no IPC): models
 //! ([`model`]), Markov-chain approximations ([`chain`]), Bayes filters,
 //! smoothers and decoders ([`filter`]), controllers ([`control`]), beliefs
-//! ([`belief`]) and the random-number streams ([`rng`]).
+//! ([`belief`]), the random-number streams ([`rng`]) and the numerical
+//! building blocks under them all ([`math`]).
+//!
+//! Inside the crate, too, a module uses only the ones below it:
+//! `math`, `rng` < `belief` < `model` < `chain`, `control` < `filter`.
 //!
 //! Conventions used across the workspace:
 //! - state vectors are `&[f64]` of the model's state dimension; matrices are
@@ -15,6 +19,7 @@ pub mod belief;
 pub mod chain;
 pub mod control;
 pub mod filter;
+pub mod math;
 pub mod model;
 pub mod rng;
 

@@ -31,13 +31,13 @@ pub mod frame;
 pub mod index;
 pub mod kernel;
 pub mod knn_tree;
-pub mod linalg;
+pub use crate::math::linalg;
 pub mod nnls;
 pub mod order;
 pub mod placement;
 pub mod prefetch;
 pub mod retire;
-pub mod sample;
+pub use crate::model::sample;
 pub mod snapshot;
 pub mod storage;
 

@@ -20,8 +20,9 @@
 //! evaluated as erfc differences in the log domain (they are ~10⁻¹⁰ here).
 
 use super::affine::ControlledBrownian;
-use crate::control::implicit::path::{Gate, PathCost};
-use crate::control::implicit::truncnorm::ln_erf_diff;
+use super::path_cost::{Gate, PathCost};
+use crate::math::truncnorm::ln_erf_diff;
+use crate::math::weights::log_sum_exp;
 
 /// Table 1 of the paper.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -123,9 +124,7 @@ impl DoubleSlit {
             terms[i] = ln_erf_diff((l - c0) * k, (h - c0) * k);
         }
         let _ = a;
-        0.5 * (g / tt).ln() - x * x / (2.0 * tt)
-            + crate::control::implicit::weights::log_sum_exp(&terms)
-            - std::f64::consts::LN_2
+        0.5 * (g / tt).ln() - x * x / (2.0 * tt) + log_sum_exp(&terms) - std::f64::consts::LN_2
     }
 
     fn before_wall(&self, x: f64, t: f64) -> (f64, f64, f64, f64) {
@@ -151,7 +150,7 @@ impl DoubleSlit {
         for (i, &(l, h)) in self.slits.iter().enumerate() {
             terms[i] = ln_erf_diff((l - c0) * k, (h - c0) * k);
         }
-        let log_s = crate::control::implicit::weights::log_sum_exp(&terms);
+        let log_s = log_sum_exp(&terms);
         let mut num = 0.0;
         for &(l, h) in &self.slits {
             let (hh, ll) = ((h - c0) * k, (l - c0) * k);
@@ -170,7 +169,7 @@ impl DoubleSlit {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::control::implicit::truncnorm::ln_erfc;
+    use crate::math::truncnorm::ln_erfc;
 
     /// ψ before the wall by Simpson quadrature of its defining integral:
     /// ψ = ∫_slits N(y₁; x, σŝ) √(γ/(γ+σs)) e^{−y₁²/(2(γ+σs))} dy₁.

@@ -11,7 +11,7 @@
 //! Undamped Newton from (−1, −4) goes to the saddle (−0.127961, −1.953715),
 //! f = 178.3372 (Table 4's Newton column; notes Appendix A check 1).
 
-use crate::control::implicit::path::PathCost;
+use super::path_cost::PathCost;
 
 /// Himmelblau's function.
 pub fn f(x: &[f64]) -> f64 {

@@ -27,6 +27,8 @@ pub mod himmelblau;
 pub mod linear;
 pub mod lorenz;
 pub mod param_estimation;
+pub mod path_cost;
+pub mod sample;
 pub mod scale;
 pub mod ship;
 pub mod vanderpol;

@@ -17,7 +17,7 @@
 //! from it). The probe is data-free and seeded.
 
 use crate::belief::Gaussian;
-use crate::chain::placement::{draw_prior, prior_sampler};
+use crate::model::sample::Sampler;
 use crate::model::{em_step, SdeModel};
 use crate::rng::SimRng;
 use crate::{MAX_NOISE, MAX_STATE};
@@ -122,7 +122,7 @@ pub fn local_scales<M: SdeModel + ?Sized>(model: &M, x: &[f64]) -> (f64, f64, f6
             ff[i + j * d] = (0..k).map(|c| big_f[i + c * d] * big_f[j + c * d]).sum();
         }
     }
-    let q = crate::chain::linalg::sym_spectral_norm(&ff[..d * d], d);
+    let q = crate::math::linalg::sym_spectral_norm(&ff[..d * d], d);
     let speed = f[..d].iter().map(|v| v * v).sum::<f64>().sqrt();
     let accel = (0..d)
         .map(|i| (0..d).map(|j| jac[i + j * d] * f[j]).sum::<f64>().powi(2))
@@ -143,7 +143,8 @@ pub fn probe<M: SdeModel + ?Sized>(
     horizon: Option<f64>,
     rng: &mut SimRng,
 ) -> Result<TimeScales, ScaleError> {
-    let sampler = prior_sampler(prior).map_err(|_| ScaleError::Prior)?;
+    // The prior restricted to S, as the chain's placement draws it.
+    let sampler = Sampler::around(prior, 1.0, 0.0).ok_or(ScaleError::Prior)?;
     let d = prior.dim;
     let u = vec![0.0; model.dims().control];
     let mut starts = vec![0.0; PROBE_TRAJECTORIES * d];
@@ -161,7 +162,7 @@ pub fn probe<M: SdeModel + ?Sized>(
         }
     };
     for x in starts.chunks_exact_mut(d) {
-        draw_prior(model, &sampler, rng, x);
+        sampler.sample(model.bounds(), rng, x);
         record(x, &mut rates);
     }
     if rates.is_empty() {

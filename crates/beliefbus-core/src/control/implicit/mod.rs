@@ -21,8 +21,7 @@ pub mod estimator;
 pub mod maps;
 pub mod newton;
 pub mod path;
-pub mod truncnorm;
-pub mod weights;
+pub use crate::math::{truncnorm, weights};
 
 pub use banded::{NotPositiveDefinite, SymBand};
 pub use estimator::{

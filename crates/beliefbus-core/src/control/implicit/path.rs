@@ -36,56 +36,7 @@ use super::newton::Objective;
 use crate::model::affine::{check_condition_8, AffineError, ControlAffine, PathStructure};
 use crate::{MAX_CONTROL, MAX_STATE};
 
-/// Running and terminal state costs V(x), Φ(x) with analytic derivatives
-/// (Hessians m×m column-major, written, not accumulated).
-pub trait PathCost: Send + Sync {
-    /// V(x).
-    fn running(&self, x: &[f64]) -> f64;
-    /// V(x), ∇V into `g`, ∇²V into `h`.
-    fn running_derivatives(&self, x: &[f64], g: &mut [f64], h: &mut [f64]) -> f64;
-    /// Φ(x).
-    fn terminal(&self, x: &[f64]) -> f64;
-    /// Φ(x), ∇Φ into `g`, ∇²Φ into `h`.
-    fn terminal_derivatives(&self, x: &[f64], g: &mut [f64], h: &mut [f64]) -> f64;
-    /// Move the target; costs without a target ignore it.
-    fn set_goal(&mut self, _goal: &[f64]) {}
-}
-
-/// Most slit intervals a gate may have.
-pub const MAX_GATE_INTERVALS: usize = 4;
-
-/// A hard wall at one time step: V = +∞ unless coordinate `coord` of the
-/// path point at step `step` lies in one of the intervals (the double slit,
-/// §3.1). Each interval is a basin of F (one constrained minimum each).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Gate {
-    /// Path step i ≥ 1 (time τ_i = t + iΔt).
-    pub step: usize,
-    pub coord: usize,
-    pub intervals: [(f64, f64); MAX_GATE_INTERVALS],
-    pub count: usize,
-}
-
-impl Gate {
-    /// A gate with the given (lo, hi) intervals (at most 4).
-    pub fn new(step: usize, coord: usize, intervals: &[(f64, f64)]) -> Self {
-        assert!(!intervals.is_empty() && intervals.len() <= MAX_GATE_INTERVALS);
-        let mut iv = [(0.0, 0.0); MAX_GATE_INTERVALS];
-        iv[..intervals.len()].copy_from_slice(intervals);
-        Self {
-            step,
-            coord,
-            intervals: iv,
-            count: intervals.len(),
-        }
-    }
-    /// Index of the interval containing `v`, if any.
-    pub fn interval_of(&self, v: f64) -> Option<usize> {
-        self.intervals[..self.count]
-            .iter()
-            .position(|&(lo, hi)| v >= lo && v <= hi)
-    }
-}
+pub use crate::model::path_cost::{Gate, PathCost, MAX_GATE_INTERVALS};
 
 /// Constants of a path problem: dimensions, γ, the noise precision and the
 /// stencil mapping blocks of z to path points. Built once per controller.

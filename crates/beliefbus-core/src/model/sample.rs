@@ -16,7 +16,7 @@ use crate::MAX_STATE;
 use rand::RngExt;
 use rand_distr::StandardNormal;
 
-use super::linalg::cholesky;
+use crate::math::linalg::cholesky;
 
 /// A sampling distribution over S.
 #[derive(Clone, Debug)]
