@@ -178,7 +178,7 @@ proptest! {
 /// aborted an allocation, locked gigabytes, panicked a stage or wedged the
 /// machine: `beliefbus run` refuses each at validation — exit 2, one line
 /// naming the key — before any stage starts (the hard limits of
-/// `src/config/limits.rs`).
+/// `crates/beliefbus-runtime/src/config/limits.rs`).
 #[test]
 fn hostile_overrides_exit_2_at_validation_naming_the_key() {
     for (args, key) in [

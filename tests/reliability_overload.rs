@@ -1,6 +1,6 @@
 //! Overload: observations arrive ten times faster than the
 //! filter stage can process them. The documented policy
-//! (`filter.max_obs_age_us`, src/stage/filter.rs): an observation that
+//! (`filter.max_obs_age_us`, crates/beliefbus-runtime/src/stage/filter.rs): an observation that
 //! waited longer than that while a newer one is queued is skipped and
 //! counted as dropped, so the freshest data wins and the queueing delay
 //! stays near one filter step instead of a full queue of them.

@@ -3,7 +3,7 @@
 //! structures of `tools/python` agree with them field by field, and samples
 //! and controls cross between a Python and a Rust process byte-exactly, with
 //! either side creating the services (so the documented QoS is compatible
-//! with `src/ipc/ports.rs`).
+//! with `crates/beliefbus-ipc/src/ports.rs`).
 
 mod sensor_support;
 
@@ -228,7 +228,7 @@ fn a_service_created_by_python_is_opened_by_rust_with_its_qos() {
             l.contains("publisher ready")
         });
         assert!(ready.is_some(), "{}", c.show());
-        // Rust opens it with src/ipc/ports.rs's settings: this fails if the
+        // Rust opens it with crates/beliefbus-ipc/src/ports.rs's settings: this fails if the
         // Python side created it with smaller limits or another type.
         let b = bus(&prefix, "ingest");
         let sub = b.subscriber_with::<SensorSample>(256, true).unwrap();

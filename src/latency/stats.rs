@@ -38,7 +38,7 @@ fn us(ns: u64) -> f64 {
 impl PctBlock {
     /// The block of a nanosecond histogram.
     pub fn of(h: &LatencyHist) -> Self {
-        let p = h.percentiles();
+        let p = crate::ipc::Percentiles::from(h);
         Self {
             count: p.count,
             p50_us: us(p.p50_ns),

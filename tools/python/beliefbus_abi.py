@@ -8,7 +8,7 @@ this module is one implementation of it (iceoryx2 Python package 0.10.0).
 - ``Truth``         beliefbus.Truth.v1         service beliefbus/<instance>/truth
 
 ``SensorPublisher`` and ``ControlSubscriber`` mirror the Rust API in
-src/ipc/sensor_api.rs: they open the services with the pipeline's QoS and
+crates/beliefbus-ipc/src/sensor_api.rs: they open the services with the pipeline's QoS and
 enforce the publisher rules before anything is sent.
 """
 
@@ -119,7 +119,7 @@ class Truth(ctypes.Structure):
         return "beliefbus.Truth.v1"
 
 
-# Service QoS of each channel (src/ipc/ports.rs). Whoever comes first
+# Service QoS of each channel (crates/beliefbus-ipc/src/ports.rs). Whoever comes first
 # creates the service with these settings; everyone else must ask for no
 # more than the existing service offers, so use exactly these.
 QOS = {

@@ -42,7 +42,7 @@ def pattern_sample(k: int) -> abi.SensorSample:
 
 
 class Ship:
-    """Euler-Maruyama simulation of the drifting ship (src/model/ship.rs)."""
+    """Euler-Maruyama simulation of the drifting ship (crates/beliefbus-core/src/model/ship.rs)."""
 
     def __init__(self, x0, e=0.3, radius=9.0, wall_gain=50.0, seed=1):
         self.x = list(x0)

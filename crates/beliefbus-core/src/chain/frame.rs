@@ -1,0 +1,190 @@
+//! The moving-frame chain versions (thesis §3.3 chains built for a drift
+//! seen from a frame that moves with the belief): each version is a batch
+//! chain (Alg. 2.1) of states drawn around the belief, built for
+//! f(x, u₀) − w with w the mean drift of its states, so that the chain
+//! carries the belief's shape and the filter carries its motion as a
+//! translation of the frame
+//! ([`crate::filter::live_chain::LiveChainFilter::set_moving_frame`]).
+
+use crate::belief::Gaussian;
+use crate::chain::{Chain, ChainConfig, Sampler, TimeEqualized};
+use crate::model::{Bounds, Dims, SdeJacobians, SdeModel};
+use crate::rng::SimRng;
+use crate::{MAX_CONTROL, MAX_STATE};
+
+/// The model in the frame that moves at the constant velocity `w`:
+/// drift f(x, u) − w (the moving-frame chains, `refine.moving_frame`).
+pub struct Framed<'a, M: SdeModel + ?Sized> {
+    pub inner: &'a M,
+    pub w: [f64; MAX_STATE],
+}
+
+impl<M: SdeModel + ?Sized> SdeModel for Framed<'_, M> {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+    fn dims(&self) -> Dims {
+        self.inner.dims()
+    }
+    fn drift(&self, x: &[f64], u: &[f64], f: &mut [f64]) {
+        self.inner.drift(x, u, f);
+        for (fi, wi) in f.iter_mut().zip(&self.w) {
+            *fi -= wi;
+        }
+    }
+    fn diffusion(&self, x: &[f64], big_f: &mut [f64]) {
+        self.inner.diffusion(x, big_f)
+    }
+    fn obs_mean(&self, x: &[f64], g: &mut [f64]) {
+        self.inner.obs_mean(x, g)
+    }
+    fn obs_std(&self, std: &mut [f64]) {
+        self.inner.obs_std(std)
+    }
+    fn obs_residual(&self, y: &[f64], yhat: &[f64], r: &mut [f64]) {
+        self.inner.obs_residual(y, yhat, r)
+    }
+    fn bounds(&self) -> &Bounds {
+        self.inner.bounds()
+    }
+    fn drift_soa(&self, n: usize, x: &[f64], u: &[f64], f: &mut [f64]) {
+        self.inner.drift_soa(n, x, u, f);
+        let d = self.inner.dims().state;
+        for (i, wi) in self.w[..d].iter().enumerate() {
+            for fk in &mut f[i * n..(i + 1) * n] {
+                *fk -= wi;
+            }
+        }
+    }
+}
+
+/// The Jacobians are the model's: subtracting a constant w leaves ∂f/∂x
+/// unchanged.
+impl<M: SdeJacobians + ?Sized> SdeJacobians for Framed<'_, M> {
+    fn drift_jacobian(&self, x: &[f64], u: &[f64], jac: &mut [f64]) {
+        self.inner.drift_jacobian(x, u, jac)
+    }
+    fn obs_jacobian(&self, x: &[f64], jac: &mut [f64]) {
+        self.inner.obs_jacobian(x, jac)
+    }
+}
+
+/// How a moving-frame version is drawn and built (the `refine` settings).
+#[derive(Clone, Debug)]
+pub struct FrameBuild {
+    /// Sampling std = `inflate` × belief std ...
+    pub inflate: f64,
+    /// ... mixed with this fraction of uniform draws ...
+    pub uniform_fraction: f64,
+    /// ... the std floored at this fraction of the bounds' width.
+    pub min_std_fraction: f64,
+    pub chain: ChainConfig,
+    /// δ's upper bound (the filter's sample period).
+    pub dt: f64,
+}
+
+/// The sampling distribution N(mean, (inflate·σ)²) of `belief`'s
+/// covariance (σ floored), mixed with uniform draws.
+pub fn sampler_around<M: SdeModel + ?Sized>(
+    model: &M,
+    belief: &Gaussian,
+    mean: &[f64],
+    p: &FrameBuild,
+) -> Option<Sampler> {
+    let d = belief.dim;
+    let b = model.bounds();
+    let mut g = *belief;
+    g.mean_mut().copy_from_slice(mean);
+    for i in 0..d {
+        let floor = p.min_std_fraction * (b.hi()[i] - b.lo()[i]);
+        let v = g.cov_at(i, i);
+        if v < floor * floor {
+            g.set_cov(i, i, floor * floor);
+        }
+    }
+    Sampler::around(&g, p.inflate, p.uniform_fraction)
+}
+
+/// A moving-frame version (`refine.moving_frame`): a batch chain (Alg. 2.1)
+/// of `n` states drawn around `belief` ([`sampler_around`]), built for
+/// f(x, u₀) − w with w the mean uncontrolled drift of its states (the
+/// filter computes the same w from the snapshot,
+/// [`crate::filter::live_chain::frame_of`]), and δ fitted to its holding
+/// times.
+pub fn build_framed<M: SdeModel + ?Sized>(
+    model: &M,
+    belief: &Gaussian,
+    n: usize,
+    p: &FrameBuild,
+    rng: &mut SimRng,
+) -> Result<(Chain, TimeEqualized), super::ChainError> {
+    let d = belief.dim;
+    let nu = model.dims().control;
+    let sampler = sampler_around(model, belief, &belief.mean[..d], p);
+    let mut pts = vec![0.0; n * d];
+    for x in pts.chunks_exact_mut(d) {
+        match &sampler {
+            Some(smp) => smp.sample(model.bounds(), rng, x),
+            None => Sampler::Uniform.sample(model.bounds(), rng, x),
+        }
+    }
+    let mut w = [0.0; MAX_STATE];
+    let mut f = [0.0; MAX_STATE];
+    for x in pts.chunks_exact(d) {
+        model.drift(x, &[0.0; MAX_CONTROL][..nu], &mut f[..d]);
+        for a in 0..d {
+            w[a] += f[a];
+        }
+    }
+    for wa in &mut w[..d] {
+        *wa /= n as f64;
+    }
+    let framed = Framed { inner: model, w };
+    let c = Chain::batch(&framed, p.chain.clone(), &pts)?;
+    let mut eq = TimeEqualized::new(p.dt)?;
+    eq.fit(c.holding());
+    Ok((c, eq))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::forwarding_check::{assert_forwarded, call_each, Counting};
+
+    #[test]
+    fn the_framed_model_forwards_every_override() {
+        let m = Counting::new();
+        let calls = m.calls.clone();
+        let framed = Framed {
+            inner: &m,
+            w: [0.0; MAX_STATE],
+        };
+        call_each(&framed);
+        assert_forwarded(&calls);
+    }
+
+    #[test]
+    fn the_framed_drift_is_the_drift_less_w_in_both_layouts() {
+        use crate::model::vanderpol::{VanDerPol, VanDerPolParams};
+        let m = VanDerPol::new(VanDerPolParams::default()).unwrap();
+        let mut w = [0.0; MAX_STATE];
+        w[0] = 0.5;
+        w[1] = -1.5;
+        let framed = Framed { inner: &m, w };
+        let xs = [[0.3, -1.0], [1.2, 2.0], [-2.0, 0.1]];
+        let mut soa = [0.0; 6];
+        for (k, x) in xs.iter().enumerate() {
+            soa[k] = x[0];
+            soa[3 + k] = x[1];
+        }
+        let mut f_soa = [0.0; 6];
+        framed.drift_soa(3, &soa, &[], &mut f_soa);
+        for (k, x) in xs.iter().enumerate() {
+            let (mut f, mut g) = ([0.0; 2], [0.0; 2]);
+            m.drift(x, &[], &mut f);
+            framed.drift(x, &[], &mut g);
+            assert_eq!([g[0], g[1]], [f[0] - 0.5, f[1] + 1.5]);
+            assert_eq!([f_soa[k], f_soa[3 + k]], g);
+        }
+    }
+}

@@ -1,0 +1,244 @@
+//! Scenarios: what the pipeline needs to run a system, and the registry that
+//! maps `run.scenario = "<name>"` to it.
+//!
+//! A scenario is a plug-in with two parts:
+//! - [`Scenario`], registered by name: its typed parameter section (the
+//!   TOML table named after the scenario, e.g. `[ship]`, deserialized with
+//!   serde into [`Scenario::Params`]), a complete pipeline config that runs
+//!   it (embedded in the binary, so `beliefbus run --scenario NAME` works
+//!   from any directory), and [`Scenario::build`];
+//! - [`System`], what `build` returns: the model (the [`SdeModel`] and
+//!   [`SdeJacobians`] traits stay the model contract), optional
+//!   capabilities (the control-affine view of paper 003 eq. 7 for the
+//!   implicit path-integral controller), the plant simulation, the sensor
+//!   channels, the prior and the initial state, and what the accuracy
+//!   report and the route measure ("position" axes).
+//!
+//! The built-in scenarios ([`builtin`]) register through the same API a
+//! user's crate uses ([`Registry::with`]); the stages, the launcher and the
+//! config never match on a scenario's name. A backend that needs a
+//! capability asks [`System`] for it and the config reports a missing one
+//! at validation, naming the scenario and the capability.
+
+// The core modules under the names the scenario code uses.
+use beliefbus_core::{model, rng};
+
+pub mod builtin;
+pub mod handle;
+pub mod registry;
+
+pub use handle::{DynAffine, DynModel, PipelineModel};
+pub use registry::{Registry, ScenarioInfo};
+
+use crate::model::discrete::em_integrate;
+use crate::model::{simulate_observation, SdeModel};
+use crate::rng::SimRng;
+use beliefbus_core::{MAX_CONTROL, MAX_NOISE, MAX_STATE};
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+
+/// What a scenario's constructor knows about the run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BuildContext {
+    /// The sensor's sample period (s): models whose sampled observation
+    /// noise derives from a continuous one need it (σ = G/√Δ).
+    pub sample_dt: f64,
+}
+
+/// A system the pipeline can run, registered by [`Scenario::NAME`].
+///
+/// ```ignore
+/// struct Pendulum;
+/// impl Scenario for Pendulum {
+///     type Params = PendulumParams;          // serde, #[serde(default)]
+///     const NAME: &'static str = "pendulum";
+///     const SUMMARY: &'static str = "torque-controlled damped pendulum";
+///     const CONFIG: &'static str = include_str!("pendulum.toml");
+///     fn defaults(_: &BuildContext) -> PendulumParams { PendulumParams::default() }
+///     fn build(p: PendulumParams, _: &BuildContext) -> Result<Box<dyn System>, String> {
+///         Ok(Box::new(PendulumSystem::new(p)?))
+///     }
+/// }
+/// let registry = Registry::builtin().with::<Pendulum>();
+/// ```
+pub trait Scenario: 'static {
+    /// The parameter section `[<NAME>]`, laid over [`Scenario::defaults`]:
+    /// keys the config leaves out keep their default values. Unknown keys
+    /// should be refused (`#[serde(deny_unknown_fields)]`).
+    type Params: DeserializeOwned + Serialize;
+    /// Registry name (`run.scenario`), lower case.
+    const NAME: &'static str;
+    /// One line for `beliefbus scenarios`.
+    const SUMMARY: &'static str;
+    /// A complete pipeline config (TOML) that runs this scenario: what
+    /// `beliefbus run --scenario NAME` starts.
+    const CONFIG: &'static str;
+    /// The parameters when the config has no `[<NAME>]` section.
+    fn defaults(ctx: &BuildContext) -> Self::Params;
+    /// Build the system; an invalid parameter is an `Err` naming it.
+    fn build(params: Self::Params, ctx: &BuildContext) -> Result<Box<dyn System>, String>;
+    /// The JSON schema of `Params` for the generated configuration
+    /// reference (`schemars::schema_for!(Params)` when `Params` derives
+    /// `schemars::JsonSchema`); `None`: the section is not documented there.
+    fn params_schema() -> Option<schemars::Schema> {
+        None
+    }
+}
+
+/// One sensor channel of a scenario: which components of the model's
+/// observation vector its samples carry.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SensorChannel {
+    /// Channel id in the sensor sample.
+    pub id: u32,
+    /// A short name (`range_bearing`, `encoder`, ...).
+    pub name: &'static str,
+    /// Observation components, in sample order.
+    pub components: Vec<usize>,
+}
+
+/// A built scenario: the model and what the pipeline needs around it.
+pub trait System: Send + Sync {
+    /// The model every filter and MPPI run on.
+    fn model(&self) -> DynModel;
+
+    /// The control-affine view (paper 003 eq. 7) the implicit path-integral
+    /// controller needs; `None`: that controller is refused at validation.
+    fn control_affine(&self) -> Option<DynAffine> {
+        None
+    }
+
+    /// State components the accuracy report calls "position"
+    /// (`rmse_position`) and the route's waypoints set (1 or 2 of them).
+    fn position_axes(&self) -> &[usize];
+
+    /// The position obtained by inverting one raw measurement (the
+    /// no-filter reference `rmse_position_raw`), written into
+    /// `out[..position_axes().len()]`; `false` when the sensor cannot be
+    /// inverted (the report then has no raw reference).
+    fn raw_position(&self, _y: &[f64], _out: &mut [f64]) -> bool {
+        false
+    }
+
+    /// The true initial state when `plant.initial_state` is not given.
+    fn initial_state(&self) -> Vec<f64>;
+
+    /// The filter's prior (mean, per-component std) when `filter.prior_mean`
+    /// / `filter.prior_std` are not given.
+    fn prior(&self) -> (Vec<f64>, Vec<f64>);
+
+    /// The sensor channels (the ingest channel map when `ingest.channels`
+    /// is not given). Default: channel 0 carries the whole observation.
+    fn sensor_channels(&self) -> Vec<SensorChannel> {
+        vec![SensorChannel {
+            id: 0,
+            name: "sensor",
+            components: (0..self.model().dims().obs).collect(),
+        }]
+    }
+
+    /// The simulated plant started at `x0` (seeded, integrating with steps
+    /// of at most `max_dt`). Default: Euler–Maruyama on the model's SDE and
+    /// its observation model.
+    fn plant(&self, x0: &[f64], seed: u64, max_dt: f64) -> Box<dyn Plant> {
+        Box::new(SdePlant::new(self.model(), x0, seed, max_dt))
+    }
+}
+
+impl std::fmt::Debug for dyn System {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "System({})", self.model().name())
+    }
+}
+
+/// The simulated true system behind the plant stage.
+pub trait Plant: Send {
+    /// The true state.
+    fn state(&self) -> &[f64];
+    /// The control in force.
+    fn control(&self) -> &[f64];
+    /// Apply `u` from now on (extra entries are ignored).
+    fn set_control(&mut self, u: &[f64]);
+    /// Integrate over `dt` seconds with the control in force.
+    fn advance(&mut self, dt: f64);
+    /// Draw a measurement of the current state into `y` (the model's
+    /// observation dimension).
+    fn measure(&mut self, y: &mut [f64]);
+}
+
+/// RNG stream id of the plant (mixed with `run.seed`).
+pub const PLANT_STREAM: u64 = 0x0050_4C41_4E54; // "PLANT"
+
+/// The default plant: x ← x + f(x, u) h + F(x) √h ξ with h ≤ `max_dt`, and
+/// y = g(x) + v.
+#[derive(Debug)]
+pub struct SdePlant<M: SdeModel> {
+    model: M,
+    x: [f64; MAX_STATE],
+    u: [f64; MAX_CONTROL],
+    rng: SimRng,
+    max_dt: f64,
+}
+
+impl<M: SdeModel> SdePlant<M> {
+    /// Start at `x0` with zero control.
+    pub fn new(model: M, x0: &[f64], seed: u64, max_dt: f64) -> Self {
+        let mut x = [0.0; MAX_STATE];
+        x[..x0.len()].copy_from_slice(x0);
+        Self {
+            model,
+            x,
+            u: [0.0; MAX_CONTROL],
+            rng: crate::rng::stream(seed, PLANT_STREAM),
+            max_dt,
+        }
+    }
+
+    /// The model.
+    pub fn model(&self) -> &M {
+        &self.model
+    }
+}
+
+impl<M: SdeModel> Plant for SdePlant<M> {
+    fn state(&self) -> &[f64] {
+        &self.x[..self.model.dims().state]
+    }
+    fn control(&self) -> &[f64] {
+        &self.u[..self.model.dims().control]
+    }
+    fn set_control(&mut self, u: &[f64]) {
+        let n = self.model.dims().control.min(u.len());
+        self.u[..n].copy_from_slice(&u[..n]);
+    }
+    fn advance(&mut self, dt: f64) {
+        let d = self.model.dims();
+        em_integrate(
+            &self.model,
+            &mut self.x[..d.state],
+            &self.u[..d.control],
+            dt,
+            self.max_dt,
+            &mut self.rng,
+        );
+    }
+    fn measure(&mut self, y: &mut [f64]) {
+        let d = self.model.dims();
+        simulate_observation(&self.model, &self.x[..d.state], &mut self.rng, y);
+    }
+}
+
+/// Whether F(x)F(x)ᵀ has full rank at `x` (the chain filter's Gaussian and
+/// moment-matched kernels need noise on every coordinate).
+pub fn full_rank_diffusion(model: &impl SdeModel, x: &[f64]) -> bool {
+    let dims = model.dims();
+    let (d, k) = (dims.state, dims.noise);
+    let mut f = [0.0; MAX_STATE * crate::MAX_NOISE];
+    model.diffusion(x, &mut f[..d * k]);
+    let fm = nalgebra::DMatrix::from_column_slice(d, k, &f[..d * k]);
+    let a = &fm * fm.transpose();
+    let scale = a.diagonal().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    scale > 0.0
+        && a.cholesky()
+            .is_some_and(|c| c.l().diagonal().iter().all(|l| *l * *l > 1e-12 * scale))
+}
