@@ -223,7 +223,7 @@ fn durations_at_the_limit_are_valid_durations() {
 
 #[test]
 fn an_integration_step_too_coarse_for_the_model_is_refused_at_validation() {
-    let text = include_str!("../../configs/vanderpol.toml");
+    let text = include_str!("../../../../configs/vanderpol.toml");
     // Van der Pol's drift reaches ρ ≈ 8 /s: Euler–Maruyama at 50 ms would
     // bias the particle filter, RK4 at 100 ms the Kalman filters.
     let e = err(text, &["filter.pf.max_dt=0.05"]);
