@@ -1,4 +1,4 @@
-//! Anytime evidence (issue 4): the ship scenario of a pipeline config
+//! Anytime evidence: the ship scenario of a pipeline config
 //! (`configs/default.toml` unless `config=FILE`), uncontrolled (the paper's
 //! drifting ship), filtered by the pipeline's chain backend on a chain that
 //! the pipeline's refine code grows while the filter runs — and, on the same

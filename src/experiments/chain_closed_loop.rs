@@ -1,4 +1,4 @@
-//! The live chain filter under closed-loop-like control (issue 4): the ship
+//! The live chain filter under closed-loop-like control: the ship
 //! of a pipeline config driven by strong piecewise-constant forces that a
 //! PD law on the *true* state computes toward the config's waypoints
 //! (u = clamp(k_p(w − p) − k_d v, ±u_max), held for `hold_s`), recorded

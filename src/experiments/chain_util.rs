@@ -1,4 +1,4 @@
-//! Helpers shared by the Markov-chain experiments (issue 3): typed
+//! Helpers shared by the Markov-chain experiments: typed
 //! `--param` parsing that records every value in the report, truth and
 //! observation simulation, and running a filter over a record.
 

@@ -109,12 +109,12 @@ pub fn all() -> Vec<Experiment> {
         },
         Experiment {
             name: "anytime",
-            about: "issue 4: the live chain grown by refine while the chain backend filters the ship — error per second vs the offline chain filter at the same size and the PF",
+            about: "the live chain grown by refine while the chain backend filters the ship — error per second vs the offline chain filter at the same size and the PF",
             run: anytime::run,
         },
         Experiment {
             name: "chain-closed-loop",
-            about: "issue 4: the live chain filter vs the PF under strong recorded PD forces on the ship (closed-loop-like)",
+            about: "the live chain filter vs the PF under strong recorded PD forces on the ship (closed-loop-like)",
             run: chain_closed_loop::run,
         },
         Experiment {

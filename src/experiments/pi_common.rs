@@ -1,4 +1,4 @@
-//! Helpers shared by the path-integral experiments (issue 5): typed
+//! Helpers shared by the path-integral experiments: typed
 //! `--param key=value` lookup that rejects unknown keys, and summary
 //! statistics.
 

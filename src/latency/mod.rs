@@ -1,4 +1,4 @@
-//! Latency and jitter testing toolkit (issue 6): measure every hop against
+//! Latency and jitter testing toolkit: measure every hop against
 //! the machine's own floor, in the same run.
 //!
 //! **Latency** (`beliefbus latency`, [`run::run`]): two processes ping-pong

@@ -1,4 +1,4 @@
-//! Jitter of the running pipeline (issue 6, item 2b): `beliefbus run` is
+//! Jitter of the running pipeline: `beliefbus run` is
 //! started as a child process on a config, and a monitor of our own reads
 //! its `control` stream on a separate, polling subscriber (no listener, so
 //! the control stage pays nothing for it). Every figure comes from stamps

@@ -1,4 +1,4 @@
-//! The Markov-chain filter on live chain snapshots (issue 4): the Bayes
+//! The Markov-chain filter on live chain snapshots: the Bayes
 //! recursion of thesis §3.3 (eq. 3.6) run directly on a snapshot that the
 //! refine stage wrote into shared memory ([`crate::chain::snapshot`]),
 //! while newer versions of the chain keep arriving.
@@ -710,7 +710,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         let [a, b] = &self.transport;
         a.off + b.off
     }
-    /// Moving frame (issue 4, `refine.moving_frame`): every version is a
+    /// Moving frame (`refine.moving_frame`): every version is a
     /// chain built for g(z) = f(z, u₀) − w, w the mean uncontrolled drift of
     /// its states ([`frame_of`]), around the belief: the chain carries the
     /// belief's shape, a frame displacement F carries its motion. Mass at z

@@ -1,6 +1,6 @@
 //! Continuous–discrete unscented Kalman filter (Julier & Uhlmann 1997; Wan &
 //! van der Merwe 2000 weights; continuous–discrete form after Särkkä 2007),
-//! a baseline beside the EKF and the bootstrap PF (issue 3, item 7).
+//! a baseline beside the EKF and the bootstrap PF.
 //!
 //! Sigma points of N(m, P) in dimension n, with λ = α²(n + κ) − n:
 //!

@@ -17,7 +17,7 @@
 //!    publishers, e.g. `beliefbus plant`, feed the pipeline). Each stage pins and prioritises itself from
 //!    `[stages.<name>]`.
 //! 4. Print a status line every second; stop on the duration or on Ctrl-C
-//!    (SIGINT/SIGTERM). Supervise (issue 8, policy in [`super::supervisor`]):
+//!    (SIGINT/SIGTERM). Supervise (policy in [`super::supervisor`]):
 //!    reap a dead stage (waitpid), let iceoryx2 remove the dead node's stale
 //!    resources, restart it after its backoff with the state it resumes
 //!    from ([`super::supervisor_resume`]); kill and restart a stage whose

@@ -7,7 +7,7 @@
 //! - `on = "failure"` (default): restart after a crash (exit status ≠ 0, or
 //!   killed by a signal) or a hang; a stage that exits 0 on its own ends the
 //!   run (it decided to stop). `"always"`: restart after any exit.
-//!   `"never"`: any exit or hang ends the run (the behaviour of issue 2).
+//!   `"never"`: any exit or hang ends the run.
 //! - Backoff: the n-th consecutive restart waits
 //!   `d_n = min(backoff_ms · 2^(n−1), max_backoff_ms)`; an incarnation that
 //!   lived at least `reset_after_s` resets n to 1 (so an occasional crash

@@ -1,4 +1,4 @@
-//! Refine restarts with its chain (issue 8): a restarted refine resumes from
+//! Refine restarts with its chain: a restarted refine resumes from
 //! the last chain snapshot it published — same lineage, same stable state
 //! ids, next version numbers — so the filter's swap to the first version
 //! after the restart is an ordinary remap by id (no mass lost to a restart
