@@ -1,0 +1,1 @@
+//! Change-point ARX model (placeholder, filled below).
