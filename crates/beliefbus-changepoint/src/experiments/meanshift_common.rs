@@ -54,10 +54,15 @@ pub fn rbpf_pass(
     })
 }
 
-/// The exact filter's SSE, pruning segments of posterior mass < e⁻²⁰ ≈ 2e-9
-/// (their contribution to the mean is below 1e-8 of the level scale).
-pub fn exact_pass(model: MeanShiftModel, y: &[f64], mu: &[f64]) -> Result<Pass, ChangepointError> {
-    let mut f = ExactMeanShift::with_pruning(model, -20.0)?;
+/// The exact filter's SSE, dropping segments whose posterior probability
+/// falls below e^(−prune).
+pub fn exact_pass(
+    model: MeanShiftModel,
+    prune: f64,
+    y: &[f64],
+    mu: &[f64],
+) -> Result<Pass, ChangepointError> {
+    let mut f = ExactMeanShift::with_pruning(model, -prune)?;
     let t0 = Instant::now();
     let mut sse = 0.0;
     for (&yt, &mt) in y.iter().zip(mu) {
