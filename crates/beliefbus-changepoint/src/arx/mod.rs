@@ -13,6 +13,7 @@
 pub mod control;
 pub mod linalg;
 pub mod ls;
+pub mod online;
 pub mod plant;
 pub mod rbpf;
 

@@ -29,6 +29,9 @@ pub const PARAMS: &[&str] = &[
     "exact_prune",
 ];
 
+/// One run: every (scheme, bound) pass, and the exact filter's if asked.
+type RunPasses = (Vec<Pass>, Option<Pass>);
+
 /// Run the experiment: `runs` sequences (default 100) from `seed`.
 pub fn run(
     runs: Option<usize>,
@@ -55,30 +58,29 @@ pub fn run(
     }
 
     let started = std::time::Instant::now();
-    let per_run: Vec<Result<(Vec<Pass>, Option<Pass>), ChangepointError>> =
-        par_map(runs, threads, |i| {
-            let (mu, y) = simulate(model, n, seed, i);
-            let mut passes = Vec::with_capacity(schemes.len() * bounds.len());
-            for &scheme in &schemes {
-                for &b in &bounds {
-                    let cfg = RbpfConfig {
-                        particles: m,
-                        cv2_bound: b,
-                        scheme,
-                        rho_prior: RhoPrior::Known,
-                        tilt: None,
-                    };
-                    passes.push(rbpf_pass(model, cfg, &y, &mu, run_rng(seed, FILTER, i))?);
-                }
+    let per_run: Vec<Result<RunPasses, ChangepointError>> = par_map(runs, threads, |i| {
+        let (mu, y) = simulate(model, n, seed, i);
+        let mut passes = Vec::with_capacity(schemes.len() * bounds.len());
+        for &scheme in &schemes {
+            for &b in &bounds {
+                let cfg = RbpfConfig {
+                    particles: m,
+                    cv2_bound: b,
+                    scheme,
+                    rho_prior: RhoPrior::Known,
+                    tilt: None,
+                };
+                passes.push(rbpf_pass(model, cfg, &y, &mu, run_rng(seed, FILTER, i))?);
             }
-            let exact = if with_exact {
-                Some(exact_pass(model, prune, &y, &mu)?)
-            } else {
-                None
-            };
-            Ok((passes, exact))
-        });
-    let per_run: Vec<(Vec<Pass>, Option<Pass>)> = per_run.into_iter().collect::<Result<_, _>>()?;
+        }
+        let exact = if with_exact {
+            Some(exact_pass(model, prune, &y, &mu)?)
+        } else {
+            None
+        };
+        Ok((passes, exact))
+    });
+    let per_run: Vec<RunPasses> = per_run.into_iter().collect::<Result<_, _>>()?;
 
     let mut rep = Report::new("changepoint-cv2");
     rep.lead_columns(&[

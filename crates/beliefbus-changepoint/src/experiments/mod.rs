@@ -9,6 +9,7 @@ pub mod cv2;
 pub mod meanshift_common;
 pub mod par;
 pub mod report;
+pub mod step_cost;
 pub mod tilt;
 pub mod unknown_rho;
 
@@ -65,6 +66,12 @@ pub fn all() -> Vec<Experiment> {
             "paper 002 sec. 3.4 (Chen & Lai 2007 Tables III-IV): adaptive control rules (18) and (20) on the Bayes, window and forgetting estimates vs an oracle",
             arx_control::PARAMS,
             arx_control::run,
+        ),
+        e(
+            "changepoint-step-cost",
+            "fast RBPF vs bootstrap PF at equal M on the Table 1 model: time per step and SSE (no paper figure)",
+            step_cost::PARAMS,
+            step_cost::run,
         ),
     ]
 }
