@@ -27,7 +27,7 @@
 
 use super::meanshift_common::{run_rng, DATA, FILTER};
 use super::par::{default_threads, par_map};
-use super::report::{mean_se, Params, Report, Row};
+use super::report::{check_runs, mean_se, Params, Report, Row};
 use crate::arx::control::{certainty_equivalence, uncertainty_adjusted};
 use crate::arx::linalg::Vector;
 use crate::arx::ls::{ForgettingRls, SlidingWindowLs};
@@ -206,7 +206,7 @@ pub fn run(
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
     let p = Params::new(params, PARAMS)?;
-    let runs = runs.unwrap_or(100);
+    let runs = check_runs(runs.unwrap_or(100))?;
     let n: usize = p.get("n", 3000)?;
     let period: usize = p.get("period", 100)?;
     if period < 2 {

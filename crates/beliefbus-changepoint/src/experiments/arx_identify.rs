@@ -15,7 +15,7 @@
 use super::arx_common::{simulate_open_loop, RANGES};
 use super::meanshift_common::{run_rng, FILTER};
 use super::par::{default_threads, par_map};
-use super::report::{mean_se, Params, Report, Row};
+use super::report::{check_runs, mean_se, Params, Report, Row};
 use crate::arx::linalg::{dot, Vector};
 use crate::arx::ls::{ForgettingRls, SlidingWindowLs};
 use crate::arx::plant::ThetaRegion;
@@ -89,7 +89,7 @@ pub fn run(
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
     let p = Params::new(params, PARAMS)?;
-    let runs = runs.unwrap_or(100);
+    let runs = check_runs(runs.unwrap_or(100))?;
     let n: usize = p.get("n", 3000)?;
     let cfg = ArxRbpfConfig {
         particles: p.get("particles", 50)?,

@@ -10,7 +10,7 @@ use super::meanshift_common::{
     bound_index, exact_pass, rbpf_pass, run_rng, simulate, Pass, BOUNDS, FILTER, TABLE1,
 };
 use super::par::{default_threads, par_map};
-use super::report::{mean_se, setting, Params, Report, Row};
+use super::report::{check_runs, mean_se, setting, Params, Report, Row};
 use crate::error::ChangepointError;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
 use crate::meanshift::MeanShiftModel;
@@ -27,6 +27,7 @@ pub const PARAMS: &[&str] = &[
     "threads",
     "exact",
     "exact_prune",
+    "estimate",
 ];
 
 /// One run: every (scheme, bound) pass, and the exact filter's if asked.
@@ -39,7 +40,7 @@ pub fn run(
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
     let p = Params::new(params, PARAMS)?;
-    let runs = runs.unwrap_or(100);
+    let runs = check_runs(runs.unwrap_or(100))?;
     let n: usize = p.get("n", 10_000)?;
     let m: usize = p.get("particles", 50)?;
     let model = MeanShiftModel::new(p.get("sigma", 1.0)?, p.get("rho", 0.001)?)?;
@@ -48,6 +49,16 @@ pub fn run(
     let threads: usize = p.get("threads", default_threads())?;
     let with_exact: bool = p.get("exact", false)?;
     let prune: f64 = p.get("exact_prune", 20.0)?;
+    let after = match p.get("estimate", "before".to_string())?.as_str() {
+        "before" => false,
+        "after" => true,
+        other => {
+            return Err(ChangepointError::Param {
+                key: "estimate".into(),
+                msg: format!("'{other}': before or after (resampling)"),
+            })
+        }
+    };
     for &b in &bounds {
         if b.is_nan() || b < 0.0 {
             return Err(ChangepointError::NonNegative {
@@ -69,6 +80,7 @@ pub fn run(
                     scheme,
                     rho_prior: RhoPrior::Known,
                     tilt: None,
+                    estimate_after_resampling: after,
                 };
                 passes.push(rbpf_pass(model, cfg, &y, &mu, run_rng(seed, FILTER, i))?);
             }
@@ -101,9 +113,14 @@ pub fn run(
     rep.param("sigma", model.sigma);
     rep.param("rho", model.rho);
     rep.param("tilt", "rho (none)");
+    rep.param("cv2", "1/M variance, resample when cv2 >= bound from t = 2");
     rep.param(
-        "cv2",
-        "1/M variance, resample when cv2 >= bound from t = 2, estimate before resampling",
+        "estimate",
+        if after {
+            "after resampling"
+        } else {
+            "before resampling"
+        },
     );
     rep.param("threads", threads);
     for (si, &scheme) in schemes.iter().enumerate() {

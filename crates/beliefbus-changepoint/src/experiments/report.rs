@@ -231,6 +231,18 @@ where
     })
 }
 
+/// Refuse zero repetitions (every statistic would be empty).
+pub fn check_runs(runs: usize) -> Result<usize, ChangepointError> {
+    if runs == 0 {
+        return Err(ChangepointError::TooSmall {
+            name: "runs",
+            value: 0,
+            min: 1,
+        });
+    }
+    Ok(runs)
+}
+
 /// Mean and standard error of the mean.
 pub fn mean_se(x: &[f64]) -> (f64, f64) {
     let n = x.len() as f64;

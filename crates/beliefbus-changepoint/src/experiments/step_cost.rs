@@ -7,7 +7,7 @@
 
 use super::meanshift_common::{rbpf_pass, run_rng, simulate, Pass, FILTER};
 use super::par::{default_threads, par_map};
-use super::report::{mean_se, Params, Report, Row};
+use super::report::{check_runs, mean_se, Params, Report, Row};
 use crate::error::ChangepointError;
 use crate::meanshift::bootstrap::MeanShiftBootstrap;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
@@ -47,7 +47,7 @@ pub fn run(
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
     let p = Params::new(params, PARAMS)?;
-    let runs = runs.unwrap_or(20);
+    let runs = check_runs(runs.unwrap_or(20))?;
     let n: usize = p.get("n", 10_000)?;
     let ms: Vec<usize> = p.list("particles", &[50, 500])?;
     let model = MeanShiftModel::new(p.get("sigma", 1.0)?, p.get("rho", 0.001)?)?;
@@ -62,6 +62,7 @@ pub fn run(
                     scheme: Scheme::Systematic,
                     rho_prior: RhoPrior::Known,
                     tilt: None,
+                    estimate_after_resampling: false,
                 };
                 Ok((
                     rbpf_pass(model, cfg, &y, &mu, run_rng(seed, FILTER, i))?,

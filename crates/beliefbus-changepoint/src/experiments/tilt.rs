@@ -6,7 +6,7 @@
 
 use super::meanshift_common::{rbpf_pass, run_rng, simulate, Pass, FILTER, TABLE2};
 use super::par::{default_threads, par_map};
-use super::report::{mean_se, Params, Report, Row};
+use super::report::{check_runs, mean_se, Params, Report, Row};
 use crate::error::ChangepointError;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
 use crate::meanshift::MeanShiftModel;
@@ -31,7 +31,7 @@ pub fn run(
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
     let p = Params::new(params, PARAMS)?;
-    let runs = runs.unwrap_or(100);
+    let runs = check_runs(runs.unwrap_or(100))?;
     let n: usize = p.get("n", 10_000)?;
     let m: usize = p.get("particles", 50)?;
     let model = MeanShiftModel::new(p.get("sigma", 1.0)?, p.get("rho", 0.001)?)?;
@@ -59,6 +59,7 @@ pub fn run(
                     scheme,
                     rho_prior: RhoPrior::Known,
                     tilt: if r == 1.0 { None } else { Some(r * model.rho) },
+                    estimate_after_resampling: false,
                 };
                 rbpf_pass(model, cfg, &y, &mu, run_rng(seed, FILTER, i))
             })

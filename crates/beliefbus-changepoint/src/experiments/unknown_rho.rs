@@ -11,7 +11,7 @@ use super::meanshift_common::{
     bound_index, rbpf_pass, run_rng, simulate, Pass, BOUNDS, DATA, FILTER, RHO_DRAW, TABLE3,
 };
 use super::par::{default_threads, par_map};
-use super::report::{mean_se, setting, Params, Report, Row};
+use super::report::{check_runs, mean_se, setting, Params, Report, Row};
 use crate::error::ChangepointError;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
 use crate::meanshift::MeanShiftModel;
@@ -45,7 +45,7 @@ pub fn run(
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
     let p = Params::new(params, PARAMS)?;
-    let runs = runs.unwrap_or(100);
+    let runs = check_runs(runs.unwrap_or(100))?;
     let n: usize = p.get("n", 10_000)?;
     let m: usize = p.get("particles", 50)?;
     let sigma: f64 = p.get("sigma", 1.0)?;
@@ -65,6 +65,7 @@ pub fn run(
         scheme,
         rho_prior,
         tilt: None,
+        estimate_after_resampling: false,
     };
     let beta_prior = RhoPrior::Beta { alpha, beta };
 
@@ -128,6 +129,10 @@ pub fn run(
         "resamplings_paper",
         "resamplings_b",
         "resamplings_b_paper",
+        "sse_rho_minus_bound1",
+        "sse_rho_minus_bound1_se",
+        "bayes_sse_minus_bound1",
+        "bayes_sse_minus_bound1_se",
     ]);
     rep.param("runs", runs);
     rep.param("seed", seed);
@@ -146,6 +151,14 @@ pub fn run(
         let (s_rho, s_rho_se) = mean_se(&col(&|r| r.beta_at_rho[k].sse));
         let (s_known, s_known_se) = mean_se(&col(&|r| r.known_at_rho[k].sse));
         let (s_bayes, s_bayes_se) = mean_se(&col(&|r| r.bayes[k].sse));
+        // Paired against bound 1 on the same sequences (the Bayes SSE's
+        // spread across drawn ρ is large; the paired s.e. is not).
+        let b1 = bounds.iter().position(|&x| x == 1.0);
+        let paired = |f: &dyn Fn(&RunOut, usize) -> f64| -> Option<(f64, f64)> {
+            b1.map(|j| mean_se(&col(&|r| f(r, k) - f(r, j))))
+        };
+        let d_rho = paired(&|r, q| r.beta_at_rho[q].sse);
+        let d_bayes = paired(&|r, q| r.bayes[q].sse);
         let res = mean_se(&col(&|r| r.beta_at_rho[k].resamplings as f64)).0;
         let res_b = mean_se(&col(&|r| r.bayes[k].resamplings as f64)).0;
         let secs: f64 = per_run
@@ -164,6 +177,13 @@ pub fn run(
             .num("bayes_sse_se", s_bayes_se)
             .num("resamplings", res)
             .num("resamplings_b", res_b);
+        if let (Some((d, dse)), Some((e, ese))) = (d_rho, d_bayes) {
+            row = row
+                .num("sse_rho_minus_bound1", d)
+                .num("sse_rho_minus_bound1_se", dse)
+                .num("bayes_sse_minus_bound1", e)
+                .num("bayes_sse_minus_bound1_se", ese);
+        }
         if let Some(j) = bound_index(b) {
             let t = TABLE3[j];
             row = row

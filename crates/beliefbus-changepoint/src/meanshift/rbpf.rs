@@ -14,7 +14,7 @@
 //!   the predictive (n₁ + α)/(t − 1 + α + β), eq. (29), n₁ the particle's
 //!   count of changes in I_{1:t−1};
 //! - estimate (9) with (5): μ̂_t = Σ W_j S_j/(n_j + σ⁻²), formed before
-//!   resampling;
+//!   resampling (optionally after: the paper does not say);
 //! - if cv²(w) ≥ bound, eq. (8), resample the particles' (n, S, n₁) — the
 //!   sufficient statistics of their whole I_{1:t} — and reset the weights.
 //!
@@ -53,6 +53,9 @@ pub struct RbpfConfig {
     pub rho_prior: RhoPrior,
     /// Proposal change probability ρ̃ (None: ρ̃ = ρ). Known ρ only.
     pub tilt: Option<f64>,
+    /// Form the estimate after rejuvenation instead of before (the paper
+    /// does not say; before is the lower-variance choice and the default).
+    pub estimate_after_resampling: bool,
 }
 
 impl Default for RbpfConfig {
@@ -63,6 +66,7 @@ impl Default for RbpfConfig {
             scheme: Scheme::Systematic,
             rho_prior: RhoPrior::Known,
             tilt: None,
+            estimate_after_resampling: false,
         }
     }
 }
@@ -216,6 +220,9 @@ impl MeanShiftRbpf {
         let est = self.estimate();
         if t >= 2 && (self.cfg.cv2_bound == 0.0 || cv2(&self.w) >= self.cfg.cv2_bound) {
             self.rejuvenate();
+            if self.cfg.estimate_after_resampling {
+                return Ok(self.estimate());
+            }
         }
         Ok(est)
     }
