@@ -11,6 +11,7 @@ pub mod arm;
 pub mod chain_closed_loop;
 pub mod chain_defaults;
 pub mod chain_util;
+pub mod changepoint;
 pub mod convergence;
 pub mod decoding;
 pub mod double_slit;
@@ -128,6 +129,10 @@ pub fn all() -> Vec<Experiment> {
             run: ship_control::run,
         },
     ]
+    .into_iter()
+    // Paper 002, from the beliefbus-changepoint crate.
+    .chain(changepoint::experiments())
+    .collect()
 }
 
 /// Find an experiment by name.

@@ -1,0 +1,77 @@
+//! Paper 002 (Chen, Lai & Wu, fast particle filters for change-point
+//! models): its experiments live in the `beliefbus-changepoint` crate; this
+//! module only adapts them to `beliefbus experiment <name>` (same rows, the
+//! paper's figures beside ours, `--param KEY=VALUE` validated by the crate).
+
+use super::{ExperimentArgs, ExperimentReport, Row};
+use beliefbus_changepoint::experiments as cp;
+
+fn run_named(name: &str, args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
+    let exp = cp::find(name)
+        .ok_or_else(|| anyhow::anyhow!("experiment {name} missing from beliefbus-changepoint"))?;
+    let rep = (exp.run)(args.runs, args.seed, &args.params)?;
+    let row = |r: cp::Row| Row {
+        method: r.method,
+        metrics: r.metrics,
+    };
+    Ok(ExperimentReport {
+        experiment: rep.experiment,
+        params: rep.params,
+        results: rep.results.into_iter().map(row).collect(),
+        paper: rep.paper.into_iter().map(row).collect(),
+        notes: rep.notes,
+    })
+}
+
+/// `changepoint-cv2` (Table 1).
+pub fn cv2(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
+    run_named("changepoint-cv2", args)
+}
+
+/// `changepoint-tilt` (Table 2).
+pub fn tilt(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
+    run_named("changepoint-tilt", args)
+}
+
+/// `changepoint-unknown-rho` (Table 3).
+pub fn unknown_rho(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
+    run_named("changepoint-unknown-rho", args)
+}
+
+/// `arx-identify`.
+pub fn arx_identify(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
+    run_named("arx-identify", args)
+}
+
+/// `arx-control`.
+pub fn arx_control(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
+    run_named("arx-control", args)
+}
+
+/// `changepoint-step-cost`.
+pub fn step_cost(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
+    run_named("changepoint-step-cost", args)
+}
+
+/// The registry entries, with the crate's descriptions.
+pub fn experiments() -> Vec<super::Experiment> {
+    type RunFn = fn(&ExperimentArgs) -> anyhow::Result<ExperimentReport>;
+    let entries: [(&str, RunFn); 6] = [
+        ("changepoint-cv2", cv2),
+        ("changepoint-tilt", tilt),
+        ("changepoint-unknown-rho", unknown_rho),
+        ("arx-identify", arx_identify),
+        ("arx-control", arx_control),
+        ("changepoint-step-cost", step_cost),
+    ];
+    entries
+        .into_iter()
+        .filter_map(|(name, run)| {
+            cp::find(name).map(|e| super::Experiment {
+                name: e.name,
+                about: e.about,
+                run,
+            })
+        })
+        .collect()
+}
