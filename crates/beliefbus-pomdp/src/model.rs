@@ -65,12 +65,7 @@ impl SparseRows {
         let n_cols = rows.first().map_or(0, Vec::len);
         Self::from_rows(
             rows.iter()
-                .map(|r| {
-                    r.iter()
-                        .enumerate()
-                        .map(|(j, &v)| (j as u32, v))
-                        .collect()
-                })
+                .map(|r| r.iter().enumerate().map(|(j, &v)| (j as u32, v)).collect())
                 .collect(),
             n_cols,
         )

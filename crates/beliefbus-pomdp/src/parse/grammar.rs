@@ -93,9 +93,7 @@ impl<'a> Parser<'a> {
             file: self.file.into(),
             line: self.line(),
             expected: expected.into(),
-            found: self
-                .peek()
-                .map_or("end of file".into(), |t| t.to_string()),
+            found: self.peek().map_or("end of file".into(), |t| t.to_string()),
         })
     }
 
@@ -206,7 +204,10 @@ impl<'a> Parser<'a> {
         let mut out = Vec::with_capacity(n);
         while let Some(&Tok::Num { value, .. }) = self.peek() {
             if probs && !(0.0..=1.0 + ROW_TOLERANCE).contains(&value) {
-                return self.semantic(self.line(), format!("probability {value} is outside [0, 1]"));
+                return self.semantic(
+                    self.line(),
+                    format!("probability {value} is outside [0, 1]"),
+                );
             }
             out.push(value);
             self.pos += 1;
@@ -241,7 +242,12 @@ impl<'a> Parser<'a> {
                 }
                 v
             }
-            _ => return self.syntax(&format!("a positive count or a list of {} names", kind.noun())),
+            _ => {
+                return self.syntax(&format!(
+                    "a positive count or a list of {} names",
+                    kind.noun()
+                ))
+            }
         };
         let mut index = HashMap::new();
         for (i, n) in names.iter().enumerate() {
@@ -296,10 +302,16 @@ impl<'a> Parser<'a> {
         let include = self.is_word("include");
         if include || self.is_word("exclude") {
             self.pos += 1;
-            self.colon(if include { "`start include`" } else { "`start exclude`" })?;
+            self.colon(if include {
+                "`start include`"
+            } else {
+                "`start exclude`"
+            })?;
             let mut chosen = vec![!include; n];
             let mut any = false;
-            while matches!(self.peek(), Some(Tok::Word(_)) | Some(Tok::Num { .. })) && !self.at_keyword() {
+            while matches!(self.peek(), Some(Tok::Word(_)) | Some(Tok::Num { .. }))
+                && !self.at_keyword()
+            {
                 let s = self.item(Kind::State, false)?.expect("no star allowed");
                 chosen[s as usize] = include;
                 any = true;
@@ -311,7 +323,12 @@ impl<'a> Parser<'a> {
             if k == 0 {
                 return self.semantic(line, "`start exclude:` leaves no state".into());
             }
-            self.start = Some(chosen.iter().map(|&c| if c { 1.0 / k as f64 } else { 0.0 }).collect());
+            self.start = Some(
+                chosen
+                    .iter()
+                    .map(|&c| if c { 1.0 / k as f64 } else { 0.0 })
+                    .collect(),
+            );
             return Ok(());
         }
         self.colon("`start`")?;
@@ -325,7 +342,10 @@ impl<'a> Parser<'a> {
                 one_hot(n, s)
             }
             Some(Tok::Num { int, .. }) => {
-                let is_one = !matches!(self.toks.get(self.pos + 1).map(|t| &t.tok), Some(Tok::Num { .. }));
+                let is_one = !matches!(
+                    self.toks.get(self.pos + 1).map(|t| &t.tok),
+                    Some(Tok::Num { .. })
+                );
                 match int {
                     Some(i) if is_one && n > 1 => {
                         let s = self.item(Kind::State, false)?.expect("no star allowed");
@@ -343,7 +363,11 @@ impl<'a> Parser<'a> {
 
     fn tables(&mut self) -> Res<()> {
         if self.trans.is_none() {
-            let (ns, na, no) = (self.size(Kind::State)?, self.size(Kind::Action)?, self.size(Kind::Obs)?);
+            let (ns, na, no) = (
+                self.size(Kind::State)?,
+                self.size(Kind::Action)?,
+                self.size(Kind::Obs)?,
+            );
             self.trans = Some(ProbTable::new(na, ns, ns));
             self.obs = Some(ProbTable::new(na, ns, no));
             self.rewards = Some(RewardTable::new(no));
@@ -360,7 +384,10 @@ impl<'a> Parser<'a> {
         if reset && self.is_word("reset") {
             self.pos += 1;
             let ns = self.size(Kind::State)?;
-            return Ok(self.start.clone().unwrap_or_else(|| vec![1.0 / ns as f64; ns]));
+            return Ok(self
+                .start
+                .clone()
+                .unwrap_or_else(|| vec![1.0 / ns as f64; ns]));
         }
         self.numbers(n, what, line, true)
     }
@@ -402,7 +429,9 @@ impl<'a> Parser<'a> {
         let identity = self.is_word("identity");
         let m = if identity {
             self.pos += 1;
-            (0..ns * ns).map(|k| if k / ns == k % ns { 1.0 } else { 0.0 }).collect()
+            (0..ns * ns)
+                .map(|k| if k / ns == k % ns { 1.0 } else { 0.0 })
+                .collect()
         } else if self.is_word("uniform") {
             self.pos += 1;
             vec![1.0 / ns as f64; ns * ns]
@@ -421,7 +450,11 @@ impl<'a> Parser<'a> {
     fn o_entry(&mut self, line: usize) -> Res<()> {
         self.colon("`O`")?;
         self.tables()?;
-        let (ns, na, no) = (self.size(Kind::State)?, self.size(Kind::Action)?, self.size(Kind::Obs)?);
+        let (ns, na, no) = (
+            self.size(Kind::State)?,
+            self.size(Kind::Action)?,
+            self.size(Kind::Obs)?,
+        );
         let a = self.item(Kind::Action, true)?;
         if self.peek() == Some(&Tok::Colon) {
             self.pos += 1;
@@ -493,7 +526,10 @@ impl<'a> Parser<'a> {
             let values = self.numbers(ns * no, "a |S|x|Z| matrix of rewards", line, false)?;
             RewardValues::Matrix { values }
         };
-        self.rewards.as_mut().expect("tables made").push(a, s, values);
+        self.rewards
+            .as_mut()
+            .expect("tables made")
+            .push(a, s, values);
         Ok(())
     }
 
@@ -503,14 +539,21 @@ impl<'a> Parser<'a> {
             what: what.into(),
         };
         let discount = self.discount.ok_or_else(|| missing("`discount:`"))?;
-        for (k, name) in [(Kind::State, "`states:`"), (Kind::Action, "`actions:`"), (Kind::Obs, "`observations:`")] {
+        for (k, name) in [
+            (Kind::State, "`states:`"),
+            (Kind::Action, "`actions:`"),
+            (Kind::Obs, "`observations:`"),
+        ] {
             if self.spaces[k as usize].is_none() {
                 return Err(missing(name));
             }
         }
         self.tables()?;
         let (ns, na) = (self.size(Kind::State)?, self.size(Kind::Action)?);
-        let mut start = self.start.take().unwrap_or_else(|| vec![1.0 / ns as f64; ns]);
+        let mut start = self
+            .start
+            .take()
+            .unwrap_or_else(|| vec![1.0 / ns as f64; ns]);
         let sum: f64 = start.iter().sum();
         self.check_sum(sum, "the start distribution".into(), self.start_line)?;
         start.iter_mut().for_each(|p| *p /= sum);
@@ -535,13 +578,23 @@ impl<'a> Parser<'a> {
                 }
             }
         }
-        let mut reward = self.rewards.take().expect("tables made").reduce(&trans, &obs, na);
+        let mut reward = self
+            .rewards
+            .take()
+            .expect("tables made")
+            .reduce(&trans, &obs, na);
         if self.cost {
             reward.iter_mut().flatten().for_each(|r| *r = -*r);
         }
         let file = self.file.to_string();
-        let mut p = Pomdp::new(discount, start, trans.into_matrices(na), obs.into_matrices(na), reward)
-            .map_err(|source| ParseError::Model { file, source })?;
+        let mut p = Pomdp::new(
+            discount,
+            start,
+            trans.into_matrices(na),
+            obs.into_matrices(na),
+            reward,
+        )
+        .map_err(|source| ParseError::Model { file, source })?;
         let [s, a, o] = self.spaces.map(|sp| sp.expect("checked").names);
         (p.state_names, p.action_names, p.obs_names) = (s, a, o);
         Ok(p)

@@ -15,7 +15,10 @@ pub(crate) enum Tok {
     Word(String),
     /// A number; `int` when written without `.`/exponent and non-negative
     /// (an index may be written that way).
-    Num { value: f64, int: Option<usize> },
+    Num {
+        value: f64,
+        int: Option<usize>,
+    },
 }
 
 #[derive(Clone, Debug)]

@@ -58,7 +58,7 @@ pub enum ParseError {
         message: String,
     },
     /// A distribution that does not sum to one.
-    #[error("{file}:{line}: {what} sums to {sum}, expected 1 (within {tol})")]
+    #[error("{file}:{line}: {what} sums to {sum:.7}, expected 1 (within {tol})")]
     RowSum {
         file: String,
         line: usize,

@@ -143,7 +143,9 @@ impl RewardTable {
             RewardValues::Row { end: e, values } => {
                 e.is_none_or(|e| e == end).then(|| values[obs as usize])
             }
-            RewardValues::Matrix { values } => Some(values[end as usize * self.n_obs + obs as usize]),
+            RewardValues::Matrix { values } => {
+                Some(values[end as usize * self.n_obs + obs as usize])
+            }
         }
     }
 
