@@ -13,6 +13,7 @@
 //! `actions:` line); values are written with Rust's shortest round-trip
 //! formatting, so a policy reads back bit for bit.
 
+use crate::belief::SparseBelief;
 use std::fmt::Write as _;
 use std::path::Path;
 use thiserror::Error;
@@ -51,6 +52,19 @@ impl AlphaPolicy {
         let mut best = (0, f64::NEG_INFINITY);
         for (k, v) in self.vectors.iter().enumerate() {
             let x: f64 = v.iter().zip(b).map(|(a, p)| a * p).sum();
+            if x > best.1 {
+                best = (k, x);
+            }
+        }
+        best
+    }
+
+    /// Index of the best vector at a sparse belief, and its value (the
+    /// cost is the belief's support, not |S|).
+    pub fn best_sparse(&self, b: &SparseBelief) -> (usize, f64) {
+        let mut best = (0, f64::NEG_INFINITY);
+        for (k, v) in self.vectors.iter().enumerate() {
+            let x = b.dot(v);
             if x > best.1 {
                 best = (k, x);
             }

@@ -129,7 +129,6 @@ fn splitmix64(mut z: u64) -> u64 {
 /// Buffers of one simulating thread.
 struct Runner {
     upd: Updater,
-    dense: Vec<f64>,
     pred: SparseBelief,
 }
 
@@ -137,7 +136,6 @@ impl Runner {
     fn new(p: &Pomdp) -> Self {
         Runner {
             upd: Updater::new(p),
-            dense: vec![0.0; p.n_states()],
             pred: SparseBelief::default(),
         }
     }
@@ -148,13 +146,7 @@ impl Runner {
         let mut ret = 0.0;
         let mut disc = 1.0;
         for _ in 0..h {
-            for (&i, &q) in b.idx.iter().zip(&b.val) {
-                self.dense[i as usize] = q;
-            }
-            let a = policy.action(&self.dense);
-            for &i in &b.idx {
-                self.dense[i as usize] = 0.0;
-            }
+            let a = policy.actions[policy.best_sparse(&b).0];
             ret += disc * p.reward[a][s as usize];
             disc *= p.discount;
             let (cols, vals) = p.trans[a].row(s as usize);

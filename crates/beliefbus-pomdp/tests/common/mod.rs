@@ -172,34 +172,3 @@ pub fn exact_two_state(p: &Pomdp, tol: f64) -> (f64, f64, Vec<Line>) {
     }
     (val(&l), val(&u), l)
 }
-
-#[test]
-fn envelope_equals_brute_force_max() {
-    let mut x: u64 = 12345;
-    let mut rnd = || {
-        x = x
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (x >> 11) as f64 / (1u64 << 53) as f64 * 10.0 - 5.0
-    };
-    for _ in 0..200 {
-        let lines: Vec<Line> = (0..30)
-            .map(|k| Line {
-                v0: rnd(),
-                v1: rnd(),
-                action: k,
-            })
-            .collect();
-        let env = envelope(&lines);
-        for i in 0..=100 {
-            let p = i as f64 / 100.0;
-            let m = |v: &[Line]| v.iter().map(|l| l.at(p)).fold(f64::NEG_INFINITY, f64::max);
-            assert!(
-                (m(&lines) - m(&env)).abs() < 1e-9,
-                "p={p} {} {} {env:?}",
-                m(&lines),
-                m(&env)
-            );
-        }
-    }
-}
