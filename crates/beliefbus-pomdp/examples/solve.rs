@@ -21,6 +21,10 @@ fn main() {
     let opts = SolveOptions {
         precision,
         time_limit: Some(Duration::from_secs_f64(time)),
+        threads: std::env::var("THREADS")
+            .ok()
+            .and_then(|t| t.parse().ok())
+            .unwrap_or(2),
         ..Default::default()
     };
     let sol = solve(&p, &opts, |pr| {

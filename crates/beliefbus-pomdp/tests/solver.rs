@@ -187,3 +187,47 @@ fn envelope_equals_brute_force_max() {
         }
     }
 }
+
+/// Threaded upper-bound backups compute exactly what one thread computes.
+#[test]
+fn threaded_backups_equal_sequential_ones() {
+    use beliefbus_pomdp::belief::{SparseBelief, Updater};
+    use beliefbus_pomdp::solver::upper::{fib, UpperBound, PARALLEL_WORK};
+    let p = load_shared("Hallway.pomdp");
+    let mut ub = UpperBound::new(&p, fib(&p, 1e-6, 10_000));
+    let mut upd = Updater::new(&p);
+    // points along a deterministic walk, each a little below the bound
+    use rand::RngExt;
+    let mut rng = beliefbus_pomdp::simulate::stream(5, 0);
+    let mut b = SparseBelief::from_dense(&p.start);
+    let mut beliefs = Vec::new();
+    for _ in 0..3000 {
+        let br = upd.successors(&p, &b, rng.random_range(0..p.n_actions()));
+        let next = br[rng.random_range(0..br.len())].belief.clone();
+        let v = ub.value(&next);
+        ub.add(&next, v - 1e-3);
+        beliefs.push(next.clone());
+        b = if rng.random::<f64>() < 0.1 {
+            SparseBelief::from_dense(&p.start)
+        } else {
+            next
+        };
+    }
+    let n_branches: usize = (0..p.n_actions())
+        .map(|a| upd.successors(&p, &beliefs[0], a).len())
+        .sum();
+    assert!(
+        n_branches * (ub.n_points() + 1) >= PARALLEL_WORK,
+        "the threaded path is exercised: {n_branches} x {}",
+        ub.n_points()
+    );
+    for b in beliefs.iter().step_by(300) {
+        let branches: Vec<_> = (0..p.n_actions())
+            .map(|a| upd.successors(&p, b, a))
+            .collect();
+        assert_eq!(
+            ub.backup(&p, b, &branches, 1),
+            ub.backup(&p, b, &branches, 3)
+        );
+    }
+}

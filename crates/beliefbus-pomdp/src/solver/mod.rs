@@ -47,6 +47,8 @@ pub struct SolveOptions {
     /// gap)`: short trials while the gap is wide, HSVI2's fixed-ε trials
     /// once it is near the precision (0 = always the precision).
     pub trial_gap_fraction: f64,
+    /// Threads for the upper-bound backups (1 = no threads spawned).
+    pub threads: usize,
 }
 
 impl Default for SolveOptions {
@@ -56,6 +58,7 @@ impl Default for SolveOptions {
             time_limit: None,
             report_interval: Duration::from_millis(500),
             trial_gap_fraction: 0.5,
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
         }
     }
 }
@@ -151,7 +154,7 @@ pub fn solve(
         let mut threshold = eps.max(opts.trial_gap_fraction * (ub.value(&b0) - lb.value(&b0)));
         loop {
             let branches = successors(p, &mut upd, &b);
-            let (qs, child_upper) = ub.backup(p, &b, &branches);
+            let (qs, child_upper) = ub.backup(p, &b, &branches, opts.threads);
             let (a_star, v_up) = argmax(&qs);
             ub.add(&b, v_up);
             let gap = ub.value(&b) - lb.value(&b);
@@ -179,7 +182,7 @@ pub fn solve(
             let branches = successors(p, &mut upd, b);
             let (alpha, a, _) = lb.backup(p, b, &branches);
             lb.add(alpha, a);
-            let (qs, _) = ub.backup(p, b, &branches);
+            let (qs, _) = ub.backup(p, b, &branches, opts.threads);
             ub.add(b, argmax(&qs).1);
         }
         for b in path {

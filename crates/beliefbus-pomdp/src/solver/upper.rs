@@ -17,6 +17,10 @@
 use crate::belief::{Branch, SparseBelief};
 use crate::model::Pomdp;
 
+/// Below this many (branch × point) pairs a backup stays on one thread:
+/// spawning costs more than it saves.
+pub const PARALLEL_WORK: usize = 20_000;
+
 struct Point {
     b: SparseBelief,
     value: f64,
@@ -102,6 +106,14 @@ impl UpperBound {
 
     /// V̄(b).
     pub fn value(&mut self, b: &SparseBelief) -> f64 {
+        let mut scratch = std::mem::take(&mut self.scratch);
+        let v = self.value_in(b, &mut scratch);
+        self.scratch = scratch;
+        v
+    }
+
+    /// V̄(b) with a caller's zeroed buffer of |S| entries (left zeroed).
+    fn value_in(&self, b: &SparseBelief, scratch: &mut [f64]) -> f64 {
         let cb = b.dot(&self.corner);
         // FIB's own bound: the best action's Q·b.
         let fib = self
@@ -111,7 +123,7 @@ impl UpperBound {
             .fold(f64::NEG_INFINITY, f64::max);
         let mut best = cb.min(fib);
         for (&i, &v) in b.idx.iter().zip(&b.val) {
-            self.scratch[i as usize] = v;
+            scratch[i as usize] = v;
         }
         // κ ≤ 1, so point i can only help when −δ_i > c·b − best; points
         // are sorted by δ ascending, so the first that cannot help ends the
@@ -121,38 +133,61 @@ impl UpperBound {
                 break;
             }
             let need = (cb - best) / -pt.delta;
-            let k = kappa_above(&self.scratch, &pt.b, need);
+            let k = kappa_above(scratch, &pt.b, need);
             if k > need {
                 best = best.min(cb + k * pt.delta);
             }
         }
         for &i in &b.idx {
-            self.scratch[i as usize] = 0.0;
+            scratch[i as usize] = 0.0;
         }
         best
     }
 
     /// Q̄(b,a) for every action and V̄ at every branch (same layout as
-    /// `branches`).
+    /// `branches`). The branch values are independent, so with `threads`
+    /// > 1 and enough work they are shared out over scoped threads.
     pub fn backup(
         &mut self,
         p: &Pomdp,
         b: &SparseBelief,
         branches: &[Vec<Branch>],
+        threads: usize,
     ) -> (Vec<f64>, Vec<Vec<f64>>) {
+        let flat: Vec<&SparseBelief> = branches.iter().flatten().map(|br| &br.belief).collect();
+        let mut vals = vec![0.0; flat.len()];
+        let work: usize = flat.len() * (self.points.len() + 1);
+        if threads <= 1 || work < PARALLEL_WORK {
+            let mut scratch = std::mem::take(&mut self.scratch);
+            for (v, bb) in vals.iter_mut().zip(&flat) {
+                *v = self.value_in(bb, &mut scratch);
+            }
+            self.scratch = scratch;
+        } else {
+            let n = p.n_states();
+            let chunk = flat.len().div_ceil(threads);
+            let this = &*self;
+            std::thread::scope(|scope| {
+                for (out, part) in vals.chunks_mut(chunk).zip(flat.chunks(chunk)) {
+                    scope.spawn(move || {
+                        let mut scratch = vec![0.0; n];
+                        for (v, bb) in out.iter_mut().zip(part) {
+                            *v = this.value_in(bb, &mut scratch);
+                        }
+                    });
+                }
+            });
+        }
         let g = p.discount;
+        let mut it = vals.into_iter();
         let mut qs = Vec::with_capacity(branches.len());
         let mut child = Vec::with_capacity(branches.len());
         for (a, br) in branches.iter().enumerate() {
-            let mut q = b.dot(&p.reward[a]);
-            let mut vals = Vec::with_capacity(br.len());
-            for branch in br {
-                let v = self.value(&branch.belief);
-                q += g * branch.prob * v;
-                vals.push(v);
-            }
+            let v: Vec<f64> = it.by_ref().take(br.len()).collect();
+            let q =
+                b.dot(&p.reward[a]) + g * br.iter().zip(&v).map(|(x, y)| x.prob * y).sum::<f64>();
             qs.push(q);
-            child.push(vals);
+            child.push(v);
         }
         (qs, child)
     }
