@@ -166,7 +166,16 @@ impl Runner {
                     z += w;
                 }
             }
-            b.val.iter_mut().for_each(|v| *v /= z);
+            if z > 0.0 {
+                b.val.iter_mut().for_each(|v| *v /= z);
+            } else {
+                // Every state consistent with o underflowed: keep the
+                // prediction rather than divide by zero.
+                let total: f64 = self.pred.val.iter().sum();
+                b.idx.clone_from(&self.pred.idx);
+                b.val.clear();
+                b.val.extend(self.pred.val.iter().map(|v| v / total));
+            }
         }
         ret
     }
