@@ -426,22 +426,31 @@ impl<'a> Parser<'a> {
             }
             return Ok(());
         }
-        let identity = self.is_word("identity");
-        let m = if identity {
+        let t_rows = |t: &mut ProbTable, row: &dyn Fn(usize) -> Vec<(u32, f64)>| {
+            for a in expand(a, na) {
+                for s in 0..ns {
+                    t.set_sparse_row(a, s as u32, row(s), line);
+                }
+            }
+        };
+        if self.is_word("identity") {
             self.pos += 1;
-            (0..ns * ns)
-                .map(|k| if k / ns == k % ns { 1.0 } else { 0.0 })
-                .collect()
+            t_rows(self.trans.as_mut().expect("tables made"), &|s| {
+                vec![(s as u32, 1.0)]
+            });
         } else if self.is_word("uniform") {
             self.pos += 1;
-            vec![1.0 / ns as f64; ns * ns]
+            let u = 1.0 / ns as f64;
+            t_rows(self.trans.as_mut().expect("tables made"), &|_| {
+                (0..ns as u32).map(|j| (j, u)).collect()
+            });
         } else {
-            self.numbers(ns * ns, "a |S|x|S| matrix of T", line, true)?
-        };
-        let t = self.trans.as_mut().expect("tables made");
-        for a in expand(a, na) {
-            for s in 0..ns {
-                t.set_row(a, s as u32, &m[s * ns..(s + 1) * ns], line);
+            let m = self.numbers(ns * ns, "a |S|x|S| matrix of T", line, true)?;
+            let t = self.trans.as_mut().expect("tables made");
+            for a in expand(a, na) {
+                for s in 0..ns {
+                    t.set_row(a, s as u32, &m[s * ns..(s + 1) * ns], line);
+                }
             }
         }
         Ok(())

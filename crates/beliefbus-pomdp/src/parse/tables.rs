@@ -68,6 +68,13 @@ impl ProbTable {
         self.line[k] = line;
     }
 
+    /// Replaces a row by sorted, non-zero `(column, value)` pairs.
+    pub fn set_sparse_row(&mut self, a: u32, i: u32, row: Vec<(u32, f64)>, line: usize) {
+        let k = a as usize * self.n_rows + i as usize;
+        self.rows[k] = row;
+        self.line[k] = line;
+    }
+
     pub fn scale_row(&mut self, a: usize, i: usize, f: f64) {
         for (_, p) in &mut self.rows[a * self.n_rows + i] {
             *p *= f;
