@@ -12,10 +12,12 @@
 //! Subcommands: `run` (the launcher; `--sensor external` for external
 //! sensor publishers), `plant` (the simulated plant as an external
 //! publisher), `scenarios` (the registry), `experiment` (paper
-//! reproductions), `latency` and `jitter`; the hidden `stage NAME` runs one
+//! reproductions), `latency` and `jitter`, `pomdp solve|simulate`; the hidden `stage NAME` runs one
 //! stage in this process (how the launcher starts the stages of a binary
 //! with its own registry, and its fallback when the stage executables next
 //! to it are missing or from another build).
+
+mod pomdp;
 
 use crate::config::ConfigSource;
 use crate::scenario::Registry;
@@ -155,6 +157,10 @@ enum Command {
     Jitter(crate::latency::cli::JitterArgs),
     #[command(hide = true)]
     LatencyPong(crate::latency::cli::PongArgs),
+    /// Discrete POMDPs in Cassandra's `.pomdp` format: `solve` (anytime
+    /// bounds at the start belief, α-vector policy) and `simulate`.
+    #[command(subcommand)]
+    Pomdp(pomdp::PomdpCommand),
 }
 
 /// Run the `beliefbus` command line with the process's arguments and the
@@ -313,6 +319,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Latency(a) => crate::latency::cli::latency(a),
         Command::Jitter(a) => crate::latency::cli::jitter(a),
         Command::LatencyPong(a) => crate::latency::cli::pong(a),
+        Command::Pomdp(c) => pomdp::run(c),
         Command::Experiment {
             name,
             list,
