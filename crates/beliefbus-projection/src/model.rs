@@ -23,6 +23,13 @@ pub trait FilterModel: Sync {
     fn sample_transition(&self, x: &mut [f64], u: &[f64], rng: &mut SimRng);
     /// log p(y | x), up to an additive constant independent of x.
     fn obs_log_likelihood(&self, x: &[f64], y: &[f64]) -> f64;
+    /// Map a draw from a projected density into the state space S.
+    ///
+    /// An exponential-family belief may put mass outside S (a Gaussian on
+    /// an inventory level that cannot be negative); a state drawn there is
+    /// moved to the nearest point of S, i.e. the draw is from the projected
+    /// density censored to S. The default is S = R^d (no change).
+    fn constrain(&self, _x: &mut [f64]) {}
 }
 
 /// A POMDP with finitely many actions, for the projected-belief MDP.

@@ -8,7 +8,8 @@
 //! project    θ̂_k: Σ_i w^i_k c(x^i_{k|k−1}) = E_θ̂k[c]     (step 4, eq. 14)
 //! ```
 //!
-//! The *updated* density is projected, so the belief handed to the policy is
+//! Draws from f(·, θ̂) outside the model's state space are moved into it
+//! ([`FilterModel::constrain`]). The *updated* density is projected, so the belief handed to the policy is
 //! a member of the family; between steps only θ̂ is carried, and resampling
 //! from the continuous f(·, θ̂) replaces duplicated particles (no sample
 //! impoverishment). All buffers are allocated in [`ProjectionPf::new`].
@@ -78,9 +79,10 @@ impl<F: ExpFamily> ProjectionPf<F> {
 
     /// Draw the particles from f(·, θ̂) without propagating them: the
     /// initial sample x_0^i (Algorithm 4 step 1), before the update with y_0.
-    pub fn initialize(&mut self, rng: &mut SimRng) {
+    pub fn initialize<M: FilterModel>(&mut self, model: &M, rng: &mut SimRng) {
         for x in self.particles.chunks_exact_mut(self.d) {
             self.family.sample(&self.params, rng, x);
+            model.constrain(x);
         }
         self.w.fill(1.0 / self.n as f64);
     }
@@ -90,6 +92,7 @@ impl<F: ExpFamily> ProjectionPf<F> {
     pub fn predict<M: FilterModel>(&mut self, model: &M, u: &[f64], rng: &mut SimRng) {
         for x in self.particles.chunks_exact_mut(self.d) {
             self.family.sample(&self.params, rng, x);
+            model.constrain(x);
             model.sample_transition(x, u, rng);
         }
         self.w.fill(1.0 / self.n as f64);

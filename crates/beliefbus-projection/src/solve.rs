@@ -25,11 +25,13 @@ pub struct SolveOptions {
 }
 
 impl SolveOptions {
-    /// N_s = `samples`, eps = 1e-6, τ = 0.5, up to 10⁶ sweeps.
-    pub fn new(samples: usize, seed: u64, threads: usize) -> Self {
+    /// N_s = `samples`, N_c = `cost_samples`, eps = 1e-6, τ = 0.5, up to
+    /// 10⁶ sweeps.
+    pub fn new(samples: usize, cost_samples: usize, seed: u64, threads: usize) -> Self {
         Self {
             build: BuildOptions {
                 samples,
+                cost_samples,
                 threads,
                 seed,
             },
@@ -43,6 +45,7 @@ impl SolveOptions {
     pub fn key_fields(&self, key: PolicyKey, criterion: &Criterion) -> PolicyKey {
         let key = key
             .int("mc_samples", self.build.samples as u64)
+            .int("mc_cost_samples", self.build.cost_samples as u64)
             .int("mc_seed", self.build.seed)
             .num("solver_eps", self.eps);
         match criterion {

@@ -85,7 +85,7 @@ fn projected_mdp_policy_at_small_noise_is_the_full_observation_threshold() {
     let m = Inventory::paper(0.1).unwrap();
     let grid = ParamGrid::inventory_paper();
     let fam = Gaussian::new(1).unwrap();
-    let opts = SolveOptions::new(200, 7, 0);
+    let opts = SolveOptions::new(200, 5000, 7, 0);
     for crit in [Criterion::Discounted { gamma: 0.9 }, Criterion::Average] {
         let pol = solve_policy(&m, &fam, &grid, crit.clone(), &opts, m.key()).unwrap();
         for i in 0..31 {
@@ -110,7 +110,7 @@ fn policy_files_round_trip_and_stale_ones_are_refused() {
     ])
     .unwrap();
     let fam = Gaussian::new(1).unwrap();
-    let opts = SolveOptions::new(40, 1, 1);
+    let opts = SolveOptions::new(40, 200, 1, 1);
     let crit = Criterion::Discounted { gamma: 0.9 };
     let pol = solve_policy(&m, &fam, &grid, crit.clone(), &opts, m.key()).unwrap();
     let dir = std::env::temp_dir().join(format!("bbproj-policy-{}", std::process::id()));

@@ -44,7 +44,7 @@ fn scalar_ppf_tracks_the_kalman_filter() {
     let mut pf = ProjectionPf::new(fam, n, &prior).unwrap();
     let mut rng = stream(21, 0);
     let mut env = stream(21, 1);
-    pf.initialize(&mut rng);
+    pf.initialize(&m, &mut rng);
     let (mut mk, mut pk) = (2.0, 1.0);
     let mut x = 2.0 + env.sample::<f64, _>(StandardNormal);
     let mut worst: f64 = 0.0;
@@ -123,7 +123,7 @@ fn vector_ppf_tracks_the_kalman_filter() {
     let mut pf = ProjectionPf::new(fam, n, &prior).unwrap();
     let mut rng = stream(22, 0);
     let mut env = stream(22, 1);
-    pf.initialize(&mut rng);
+    pf.initialize(&model, &mut rng);
     let mut m = Vector2::new(0.0, 1.0);
     let mut p = p0;
     let mut x = Vector2::new(0.3, 0.8);

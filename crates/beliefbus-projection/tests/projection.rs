@@ -156,10 +156,11 @@ fn degenerate_projections_are_point_masses_or_subspaces() {
     let mut p = fam.new_params();
     fam.project(&x, &w, &mut p).unwrap();
     assert_eq!(p.rank, 0);
+    assert!((p.mean[0] - 3.0).abs() < 1e-12 && (p.mean[1] + 1.0).abs() < 1e-12);
     let mut d = [0.0; 2];
     for _ in 0..100 {
         fam.sample(&p, &mut rng, &mut d);
-        assert_eq!(d, [3.0, -1.0]);
+        assert_eq!(d, [p.mean[0], p.mean[1]]);
     }
     // Particles on the line x2 = 2 x1 + 1: rank one, draws stay on it.
     let x: Vec<f64> = (0..200)

@@ -26,7 +26,7 @@ use super::report::{
     check_params, list_param, param, ExperimentArgs, ExperimentError, Report, Row,
 };
 use crate::gaussian::Gaussian;
-use crate::grid::ParamGrid;
+use crate::grid::{Axis, ParamGrid};
 use crate::inventory::policies::{
     BeliefRule, BootstrapController, Controller, FullObs, ProjectedController,
 };
@@ -59,6 +59,8 @@ const KNOWN: &[&str] = &[
     "scan_steps",
     "scan_runs",
     "batches",
+    "mean_max",
+    "cost_samples",
 ];
 
 /// The settings of one experiment run.
@@ -76,6 +78,10 @@ pub struct Settings {
     pub scan_steps: usize,
     pub scan_runs: usize,
     pub batches: usize,
+    /// The last mean of the grid (the paper's 15).
+    pub mean_max: f64,
+    /// N_c, the Monte Carlo samples of each one-step cost.
+    pub cost_samples: usize,
 }
 
 impl Settings {
@@ -100,6 +106,8 @@ impl Settings {
             scan_steps: param(args, "scan_steps", 2_000_000)?,
             scan_runs: param(args, "scan_runs", 20_000)?,
             batches: param(args, "batches", 20)?,
+            mean_max: param(args, "mean_max", 15.0)?,
+            cost_samples: param(args, "cost_samples", 20_000)?,
         };
         let bad = |name: &str, v: String, d: &str| ExperimentError::BadParam {
             name: name.into(),
@@ -127,6 +135,14 @@ impl Settings {
             ));
         }
         Ok(s)
+    }
+
+    /// The policy grid: mean 0:0.5:mean_max × std 0:0.2:5.
+    pub fn grid(&self) -> Result<ParamGrid, ExperimentError> {
+        Ok(ParamGrid::new(vec![
+            Axis::range(0.0, 0.5, self.mean_max)?,
+            Axis::range(0.0, 0.2, 5.0)?,
+        ])?)
     }
 
     /// Periods simulated per run (H for the average, H + 1 discounted terms).
@@ -218,8 +234,13 @@ fn policy_for(
     dir: Option<&Path>,
 ) -> Result<(GridPolicy, bool), ExperimentError> {
     let family = Gaussian::new(1)?;
-    let grid = ParamGrid::inventory_paper();
-    let opts = SolveOptions::new(set.mc_samples, crate::rng::mix(&[set.seed, 0x4D44]), 1);
+    let grid = set.grid()?;
+    let opts = SolveOptions::new(
+        set.mc_samples,
+        set.cost_samples,
+        crate::rng::mix(&[set.seed, 0x4D44]),
+        1,
+    );
     let criterion = set.criterion();
     let path = dir.map(|d| {
         let tag = if criterion == Criterion::Average {
@@ -392,7 +413,16 @@ pub fn run(set: &Settings, name: &str) -> Result<Report, ExperimentError> {
     rep.param("periods_per_run", periods as u64);
     rep.param("particles", set.particles as u64);
     rep.param("mc_samples", set.mc_samples as u64);
-    rep.param("grid", "mean 0:0.5:15 x std 0:0.2:5 (806 points)");
+    rep.param("cost_samples", set.cost_samples as u64);
+    let grid = set.grid()?;
+    rep.param(
+        "grid",
+        format!(
+            "mean 0:0.5:{} x std 0:0.2:5 ({} points)",
+            set.mean_max,
+            grid.len()
+        ),
+    );
     rep.param("threshold_scan", "5.0:0.1:10.5");
     rep.param("l_star", threshold);
     rep.param(

@@ -1,7 +1,9 @@
 //! The side-by-side printout of Tables I/II: at each σ our cost (± s.e.)
 //! next to the paper's, the relative difference, the deviation above the
-//! full-observation policy (ours vs the paper's percentages), the ranking
-//! ours ≤ CE ≤ CE-MLE in both, and greedy's ratio to ours.
+//! full-observation policy (ours vs the paper's percentages), the paired
+//! differences CE − ours and CE-MLE − ours on common random numbers with
+//! their standard errors, the ranking ours ≤ CE ≤ CE-MLE in both, and
+//! greedy's ratio to ours.
 
 use super::inventory::Protocol;
 use super::paper::METHODS;
@@ -31,7 +33,7 @@ pub fn side_by_side(protocol: Protocol, rep: &Report) -> String {
     for m in METHODS {
         out.push_str(&format!(" | {:>17} {:>8} {:>6}", m, "paper", "diff%"));
     }
-    out.push_str(" | dev% ours/paper | ours<=ce<=ce_mle ours/paper | greedy/ours\n");
+    out.push_str(" | dev% ours/paper | ce−ours ± s.e. | ce_mle−ours ± s.e. | ours<=ce<=ce_mle ours/paper | greedy/ours\n");
     let sigmas: Vec<f64> = rep
         .results
         .iter()
@@ -73,8 +75,16 @@ pub fn side_by_side(protocol: Protocol, rep: &Report) -> String {
         let pdev = find(&rep.paper, "ours", s)
             .and_then(|r| r.get("deviation_pct"))
             .unwrap_or(f64::NAN);
+        let paired = |m: &str| {
+            let r = find(&rep.results, m, s);
+            let d = r.and_then(|r| r.get("minus_ours")).unwrap_or(f64::NAN);
+            let se = r.and_then(|r| r.get("minus_ours_se")).unwrap_or(f64::NAN);
+            format!("{d:>+7.3} ± {se:>5.3}")
+        };
         out.push_str(&format!(
-            " | {dev:>6.2} / {pdev:>6.2} | {:>3} / {:>3} | {:.2}\n",
+            " | {dev:>6.2} / {pdev:>6.2} | {} | {} | {:>3} / {:>3} | {:.2}\n",
+            paired("ce"),
+            paired("ce_mle"),
             ranking([ours[0], ours[1], ours[2]]),
             ranking([theirs[0], theirs[1], theirs[2]]),
             ours[3] / ours[0]

@@ -154,6 +154,12 @@ impl FilterModel for Inventory {
         let r = (y[0] - x[0]) / self.sigma;
         -0.5 * r * r
     }
+
+    /// Inventory is never negative: a Gaussian belief's mass below zero is
+    /// an empty store.
+    fn constrain(&self, x: &mut [f64]) {
+        x[0] = x[0].max(0.0);
+    }
 }
 
 impl Pomdp for Inventory {

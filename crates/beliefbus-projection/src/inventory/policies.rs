@@ -211,9 +211,9 @@ impl Controller for ProjectedController<'_> {
         "ours"
     }
 
-    fn reset(&mut self, _: &Inventory, rng: &mut SimRng) -> Result<(), ProjectionError> {
+    fn reset(&mut self, model: &Inventory, rng: &mut SimRng) -> Result<(), ProjectionError> {
         self.pf.reset(&self.prior);
-        self.pf.initialize(rng);
+        self.pf.initialize(model, rng);
         Ok(())
     }
 
