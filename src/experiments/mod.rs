@@ -16,6 +16,7 @@ pub mod convergence;
 pub mod decoding;
 pub mod double_slit;
 pub mod himmelblau;
+pub mod inventory;
 pub mod param_estimation;
 pub mod pi_common;
 pub mod refine_sim;
@@ -122,6 +123,16 @@ pub fn all() -> Vec<Experiment> {
             name: "chain-defaults",
             about: "the chain filter built from ChainFilterSpec's defaults vs PF-300 on Van der Pol and stochastic Lorenz-63: error, CPU per run, ratio",
             run: chain_defaults::run,
+        },
+        Experiment {
+            name: "inventory-average",
+            about: "paper 004 Table I: inventory control, average cost of one 10^5-period run per sigma: projected-belief MDP vs CE / CE-MLE / greedy",
+            run: inventory::run_average,
+        },
+        Experiment {
+            name: "inventory-discounted",
+            about: "paper 004 Table II: inventory control, discounted cost over 1000 runs of horizon 40 per sigma: projected-belief MDP vs CE / CE-MLE / greedy",
+            run: inventory::run_discounted,
         },
         Experiment {
             name: "ship-control",
