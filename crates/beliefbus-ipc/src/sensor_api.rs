@@ -15,8 +15,8 @@
 //! sample is rejected and counted there, never filtered.
 //!
 //! ```
-//! use beliefbus::ipc::cleanup;
-//! use beliefbus::ipc::sensor_api::{monotonic_now_ns, SensorError, SensorPublisher};
+//! use beliefbus_ipc::cleanup;
+//! use beliefbus_ipc::sensor_api::{monotonic_now_ns, SensorError, SensorPublisher};
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let prefix = cleanup::run_prefix(); // normally: the prefix the run printed
@@ -328,8 +328,8 @@ fn check_values(values: &[f64], std: Option<&[f64]>) -> Result<(), SensorError> 
 /// late gets the last control sent.
 ///
 /// ```
-/// use beliefbus::ipc::cleanup;
-/// use beliefbus::ipc::sensor_api::ControlSubscriber;
+/// use beliefbus_ipc::cleanup;
+/// use beliefbus_ipc::sensor_api::ControlSubscriber;
 /// use std::time::Duration;
 ///
 /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
