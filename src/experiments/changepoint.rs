@@ -1,26 +1,15 @@
 //! Paper 002 (Chen, Lai & Wu, fast particle filters for change-point
 //! models): its experiments live in the `beliefbus-changepoint` crate; this
-//! module only adapts them to `beliefbus experiment <name>` (same rows, the
-//! paper's figures beside ours, `--param KEY=VALUE` validated by the crate).
+//! module registers them as `beliefbus experiment <name>` (the same report
+//! type, `--param KEY=VALUE` validated by the crate).
 
-use super::{ExperimentArgs, ExperimentReport, Row};
+use super::{ExperimentArgs, ExperimentReport};
 use beliefbus_changepoint::experiments as cp;
 
 fn run_named(name: &str, args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
     let exp = cp::find(name)
         .ok_or_else(|| anyhow::anyhow!("experiment {name} missing from beliefbus-changepoint"))?;
-    let rep = (exp.run)(args.runs, args.seed, &args.params)?;
-    let row = |r: cp::Row| Row {
-        method: r.method,
-        metrics: r.metrics,
-    };
-    Ok(ExperimentReport {
-        experiment: rep.experiment,
-        params: rep.params,
-        results: rep.results.into_iter().map(row).collect(),
-        paper: rep.paper.into_iter().map(row).collect(),
-        notes: rep.notes,
-    })
+    Ok((exp.run)(args.runs, args.seed, &args.params)?)
 }
 
 /// `changepoint-cv2` (Table 1).

@@ -1,8 +1,9 @@
 //! beliefbus-core: the algorithms, pure and seeded (no I/O, no IPC): models
 //! ([`model`]), Markov-chain approximations ([`chain`]), Bayes filters,
 //! smoothers and decoders ([`filter`]), controllers ([`control`]), beliefs
-//! ([`belief`]), the random-number streams ([`rng`]) and the numerical
-//! building blocks under them all ([`math`]).
+//! ([`belief`]), the random-number streams ([`rng`]), the numerical
+//! building blocks under them all ([`math`]) and the experiment report
+//! every paper reproduction fills ([`report`]).
 //!
 //! Inside the crate, too, a module uses only the ones below it:
 //! `math`, `rng` < `belief` < `model` < `chain`, `control` < `filter`.
@@ -21,6 +22,7 @@ pub mod control;
 pub mod filter;
 pub mod math;
 pub mod model;
+pub mod report;
 pub mod rng;
 
 /// Largest state dimension any model may have (fixed-size messages and

@@ -1,83 +1,14 @@
-//! Rows, reports and typed `key=value` parameters, in the same JSON shape as
-//! the root crate's experiment reports (a `Row` is a method plus a flat map
-//! of metrics), so registering these experiments there is a field-by-field
-//! copy.
+//! The experiment report (the workspace's, `beliefbus_core::report`) and
+//! typed `key=value` parameters.
 
 use crate::policy::PolicyError;
 use crate::ProjectionError;
-use serde::Serialize;
-use serde_json::{Map, Value};
 use std::str::FromStr;
 use thiserror::Error;
 
-/// One row: a method and its metrics.
-#[derive(Clone, Debug, Default, Serialize, PartialEq)]
-pub struct Row {
-    pub method: String,
-    #[serde(flatten)]
-    pub metrics: Map<String, Value>,
-}
-
-impl Row {
-    pub fn new(method: &str) -> Self {
-        Self {
-            method: method.to_string(),
-            metrics: Map::new(),
-        }
-    }
-    /// A numeric metric (non-finite stored as null).
-    pub fn num(mut self, key: &str, v: f64) -> Self {
-        let val = serde_json::Number::from_f64(v)
-            .map(Value::Number)
-            .unwrap_or(Value::Null);
-        self.metrics.insert(key.to_string(), val);
-        self
-    }
-    /// The numeric metric `key`, if present.
-    pub fn get(&self, key: &str) -> Option<f64> {
-        self.metrics.get(key).and_then(Value::as_f64)
-    }
-}
-
-/// The result of one experiment.
-#[derive(Clone, Debug, Serialize)]
-pub struct Report {
-    pub experiment: String,
-    pub params: Map<String, Value>,
-    pub results: Vec<Row>,
-    pub paper: Vec<Row>,
-    /// The side-by-side table and remarks, printed (not part of the JSON).
-    #[serde(skip)]
-    pub notes: Vec<String>,
-}
-
-impl Report {
-    pub fn new(name: &str) -> Self {
-        Self {
-            experiment: name.to_string(),
-            params: Map::new(),
-            results: vec![],
-            paper: vec![],
-            notes: vec![],
-        }
-    }
-    pub fn param(&mut self, key: &str, v: impl Into<Value>) {
-        self.params.insert(key.to_string(), v.into());
-    }
-    /// The parameters, then the notes (which hold the side-by-side table).
-    pub fn render(&self) -> String {
-        let mut out = format!("experiment: {}\nparams:", self.experiment);
-        for (k, v) in &self.params {
-            out.push_str(&format!(" {k}={v}"));
-        }
-        out.push('\n');
-        for n in &self.notes {
-            out.push_str(n);
-            out.push('\n');
-        }
-        out
-    }
-}
+/// The workspace's experiment report: a row per method and setting, the
+/// paper's rows beside ours.
+pub use beliefbus_core::report::{ExperimentReport as Report, Row};
 
 /// Options shared by the experiments (as the root crate's).
 #[derive(Clone, Debug)]
