@@ -46,14 +46,7 @@ use crate::solve::{solve_policy, SolveOptions};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Which table.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Protocol {
-    /// Table I: average cost per period.
-    Average,
-    /// Table II: discounted total cost, γ.
-    Discounted { gamma: f64 },
-}
+pub use super::paper::Protocol;
 
 const KNOWN: &[&str] = &[
     "sigmas",

@@ -5,8 +5,7 @@
 //! their standard errors, the ranking ours ≤ CE ≤ CE-MLE in both, and
 //! greedy's ratio to ours.
 
-use super::inventory::Protocol;
-use super::paper::METHODS;
+use super::paper::{Protocol, METHODS};
 use super::report::{Report, Row};
 
 fn find<'a>(rows: &'a [Row], method: &str, sigma: f64) -> Option<&'a Row> {

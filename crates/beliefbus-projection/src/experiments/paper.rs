@@ -5,6 +5,15 @@
 //! (the full-observation threshold policy costs ≈ 125.5–126 over 40–41
 //! discounted periods), so we compare absolute values there.
 
+/// Which table.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Protocol {
+    /// Table I: average cost per period.
+    Average,
+    /// Table II: discounted total cost, γ.
+    Discounted { gamma: f64 },
+}
+
 /// σ = 0.1, 0.3, …, 3.3.
 pub const SIGMAS: [f64; 17] = [
     0.1, 0.3, 0.5, 0.7, 0.9, 1.1, 1.3, 1.5, 1.7, 1.9, 2.1, 2.3, 2.5, 2.7, 2.9, 3.1, 3.3,
