@@ -1,5 +1,5 @@
 //! Run one of the crate's experiments without the `beliefbus` binary:
-//! `cargo run --release --example experiment -- <name> [--runs N] [--seed S]
+//! `cargo run --release --example changepoint_experiment -- <name> [--runs N] [--seed S]
 //! [--param KEY=VALUE]... [--json FILE]`.
 
 use beliefbus_changepoint::experiments;

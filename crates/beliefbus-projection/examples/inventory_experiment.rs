@@ -1,5 +1,5 @@
 //! Run one of the crate's experiments without the `beliefbus` binary:
-//! `cargo run --release --example experiment -- <name> [--runs N] [--seed S]
+//! `cargo run --release --example inventory_experiment -- <name> [--runs N] [--seed S]
 //! [--param key=value]... [--json FILE]`.
 
 use beliefbus_projection::experiments::{find, ExperimentArgs};
