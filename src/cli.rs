@@ -128,7 +128,9 @@ enum Command {
     /// List the registered scenarios: dimensions, sensor channels and the
     /// filter and controller backends each supports.
     Scenarios,
-    /// Reproduce a table of the reference papers (`--list` shows them).
+    /// Reproduce a table of the reference papers (`--list` shows them;
+    /// `experiment NAME --help` shows that experiment's parameters).
+    #[command(disable_help_flag = true)]
     Experiment {
         /// Experiment name.
         name: Option<String>,
@@ -150,6 +152,9 @@ enum Command {
         /// No progress bar.
         #[arg(long)]
         quiet: bool,
+        /// Print help (with NAME: that experiment's parameters and defaults).
+        #[arg(long, short = 'h')]
+        help: bool,
     },
     /// One-way latency of beliefbus's ports against bare iceoryx2, per message type.
     Latency(crate::latency::cli::LatencyArgs),
@@ -287,10 +292,18 @@ pub fn main_with(registry: Registry) -> i32 {
         return crate::pipeline::stage_main::main_in(&registry, kind, argv);
     }
     if let Command::Experiment {
-        name, runs, json, ..
+        name,
+        runs,
+        json,
+        params,
+        help,
+        ..
     } = &cli.command
     {
-        if let Err(e) = check_experiment_args(name.as_deref(), *runs, json.as_deref()) {
+        if *help {
+            return experiment_help(name.as_deref());
+        }
+        if let Err(e) = check_experiment_args(name.as_deref(), *runs, json.as_deref(), params) {
             eprintln!("beliefbus: {e}");
             return 2;
         }
@@ -328,6 +341,7 @@ fn run(cli: Cli) -> Result<()> {
             json,
             params,
             quiet,
+            help: _,
         } => {
             if list || name.is_none() {
                 for e in crate::experiments::all() {
@@ -339,18 +353,13 @@ fn run(cli: Cli) -> Result<()> {
             let Some(exp) = crate::experiments::find(&name) else {
                 bail!("unknown experiment '{name}' (see `beliefbus experiment --list`)");
             };
-            let mut kv = Vec::new();
-            for p in params {
-                let (k, v) = p
-                    .split_once('=')
-                    .with_context(|| format!("--param '{p}' is not KEY=VALUE"))?;
-                kv.push((k.trim().to_string(), v.trim().to_string()));
-            }
+            let kv = parse_params(&params).map_err(anyhow::Error::msg)?;
             let args = crate::experiments::ExperimentArgs {
                 runs,
                 seed,
                 progress: !quiet,
                 params: kv,
+                doc: exp.params,
             };
             let report = (exp.run)(&args)?;
             print!("{}", report.render());
@@ -383,17 +392,66 @@ fn parse_spin(s: &str) -> Result<(crate::ipc::StageKind, f64), String> {
     Ok((kind, t))
 }
 
+/// `experiment [NAME] --help`: the experiment's parameters, or the
+/// subcommand's own help without a name.
+fn experiment_help(name: Option<&str>) -> i32 {
+    use beliefbus_core::experiment_params::render_help;
+    match name {
+        Some(n) => match crate::experiments::find(n) {
+            Some(e) => {
+                print!("{}", render_help(e.name, e.about, e.reproduces, e.params));
+                0
+            }
+            None => {
+                eprintln!(
+                    "beliefbus: unknown experiment '{n}' (see `beliefbus experiment --list`)"
+                );
+                2
+            }
+        },
+        None => {
+            use clap::CommandFactory;
+            let mut cmd = Cli::command();
+            let sub = cmd.find_subcommand_mut("experiment").cloned();
+            match sub.map(|c| c.bin_name("beliefbus experiment").print_long_help()) {
+                Some(Ok(())) => 0,
+                _ => 1,
+            }
+        }
+    }
+}
+
+/// `KEY=VALUE` pairs of `--param`.
+fn parse_params(params: &[String]) -> Result<Vec<(String, String)>, String> {
+    params
+        .iter()
+        .map(|p| {
+            p.split_once('=')
+                .map(|(k, v)| (k.trim().to_string(), v.trim().to_string()))
+                .ok_or_else(|| format!("--param '{p}' is not KEY=VALUE"))
+        })
+        .collect()
+}
+
 /// Refuse what would only fail (or print nonsense) after a long run: an
-/// unknown experiment, zero runs, a `--json` path that cannot be written.
+/// unknown experiment or parameter, zero runs, a `--json` path that cannot
+/// be written.
 fn check_experiment_args(
     name: Option<&str>,
     runs: Option<usize>,
     json: Option<&std::path::Path>,
+    params: &[String],
 ) -> Result<(), String> {
     if let Some(n) = name {
-        if crate::experiments::find(n).is_none() {
+        let Some(exp) = crate::experiments::find(n) else {
             return Err(format!(
                 "unknown experiment '{n}' (see `beliefbus experiment --list`)"
+            ));
+        };
+        let kv = parse_params(params)?;
+        if let Some(k) = beliefbus_core::experiment_params::unknown_key(exp.params, &kv) {
+            return Err(format!(
+                "experiment {n}: unknown parameter '{k}' (see `beliefbus experiment {n} --help`)"
             ));
         }
     }

@@ -20,7 +20,7 @@
 //! isolates the anytime behaviour.)
 
 use super::chain_util::{live_chain_filter, split_config_param, Params};
-use super::{ExperimentArgs, ExperimentReport, Row};
+use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::belief::Gaussian;
 use crate::chain::placement::predictive_points;
 use crate::chain::snapshot::words_needed;
@@ -43,14 +43,14 @@ fn se_pos(g: &Gaussian, x: &[f64]) -> f64 {
 
 pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let mut rep = ExperimentReport::new("anytime");
-    let (path, rest) = split_config_param(args);
+    let (cfg, path, rest) = split_config_param(args)?;
     let mut p = Params::new(&rest);
     let seconds = p.usize(&mut rep, "seconds", 20)?;
     // Known control force (all filters are given it): amplitude a of
     // u(t) = a (cos 0.7t, sin 0.5t); 0 = the drifting ship.
     let amp = p.f64(&mut rep, "control_amplitude", 0.0)?;
     p.finish()?;
-    let mut cfg = config::load(std::path::Path::new(&path), &[])?;
+    let mut cfg = cfg;
     cfg.filter.backend = config::FilterBackend::Chain;
     rep.param("config", path.as_str());
     rep.param("seed", args.seed);
@@ -104,6 +104,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let mut live_n = vec![(0usize, 0u64); seconds];
     let mut swaps = Vec::new();
     let mut refused = 0u64;
+    // One unit per simulated second, live and offline.
+    let mut bar = Progress::new("anytime", 2 * seconds, args.progress);
     for k in 0..steps {
         let t = (k + 1) as f64 * dt;
         if k % period == 0 {
@@ -128,6 +130,9 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         live_se[k / steps_per_s] += se_pos(&live.belief(), &truth[k]);
         if let Some((v, n, _)) = live.active_info() {
             live_n[k / steps_per_s] = (n, v);
+        }
+        if (k + 1) % steps_per_s == 0 {
+            bar.tick();
         }
     }
     let final_n = refiner.len().max(100);
@@ -158,6 +163,9 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             f.predict(t, &ctl(k as f64 * dt))?;
             let _ = f.update(&Measurement::full(&ys[k]));
             se[i][k / steps_per_s] += se_pos(&f.belief(), &truth[k]);
+        }
+        if (k + 1) % steps_per_s == 0 {
+            bar.tick();
         }
     }
     let rms = |v: f64| (v / steps_per_s as f64).sqrt();

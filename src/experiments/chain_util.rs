@@ -12,6 +12,7 @@ use crate::filter::BayesFilter;
 use crate::model::discrete::em_integrate;
 use crate::model::{simulate_observation, Measurement, SdeModel};
 use crate::rng::SimRng;
+use beliefbus_core::experiment_params::debug_check_default;
 
 /// `--param` values with defaults; every value read is recorded in the
 /// report's params, and unknown keys are an error.
@@ -37,6 +38,7 @@ impl<'a> Params<'a> {
 
     /// A float parameter.
     pub fn f64(&mut self, rep: &mut ExperimentReport, key: &str, default: f64) -> Result<f64> {
+        debug_check_default(self.args.doc, key, &default.to_string());
         let v = match self.raw(key) {
             Some(s) => s
                 .parse::<f64>()
@@ -57,6 +59,7 @@ impl<'a> Params<'a> {
         key: &str,
         default: usize,
     ) -> Result<usize> {
+        debug_check_default(self.args.doc, key, &default.to_string());
         let v = match self.raw(key) {
             Some(s) => s
                 .parse::<usize>()
@@ -74,6 +77,7 @@ impl<'a> Params<'a> {
         key: &str,
         default: &[usize],
     ) -> Result<Vec<usize>> {
+        debug_check_default(self.args.doc, key, &super::pi_common::join(default));
         let v = match self.raw(key) {
             Some(s) => s
                 .split(',')
@@ -97,6 +101,7 @@ impl<'a> Params<'a> {
         default: &str,
         allowed: &[&str],
     ) -> Result<String> {
+        debug_check_default(self.args.doc, key, default);
         let v = self.raw(key).unwrap_or(default).to_string();
         if !allowed.contains(&v.as_str()) {
             bail!("--param {key}={v}: expected one of {allowed:?}");
@@ -125,17 +130,29 @@ pub struct Record {
     pub ys: Vec<f64>,
 }
 
-/// The pipeline-config path of an experiment that runs a pipeline config
-/// (`--param config=FILE`, the last one wins; default
-/// `configs/default.toml`), and the arguments without it for [`Params`].
-pub fn split_config_param(args: &ExperimentArgs) -> (String, ExperimentArgs) {
+/// The pipeline config of an experiment that runs one (`--param
+/// config=FILE`, the last one wins; default: the built-in ship scenario's
+/// `configs/default.toml`, embedded in the binary so the experiment runs
+/// from any directory), its name for the report, and the arguments without
+/// it for [`Params`].
+pub fn split_config_param(
+    args: &ExperimentArgs,
+) -> Result<(crate::config::PipelineConfig, String, ExperimentArgs)> {
+    use crate::scenario::builtin::ShipScenario;
+    use crate::scenario::Scenario;
     let path = args
         .params
         .iter()
         .rev()
         .find(|(k, _)| k == "config")
-        .map(|(_, v)| v.clone())
-        .unwrap_or_else(|| "configs/default.toml".into());
+        .map(|(_, v)| v.clone());
+    let (cfg, name) = match path {
+        Some(p) => (crate::config::load(std::path::Path::new(&p), &[])?, p),
+        None => (
+            crate::config::load_str(ShipScenario::CONFIG, &[])?,
+            "(built in) configs/default.toml".to_string(),
+        ),
+    };
     let params = args
         .params
         .iter()
@@ -146,7 +163,7 @@ pub fn split_config_param(args: &ExperimentArgs) -> (String, ExperimentArgs) {
         params,
         ..args.clone()
     };
-    (path, rest)
+    Ok((cfg, name, rest))
 }
 
 /// Simulate `steps` observation periods of `dt` from `x0` (Euler–Maruyama

@@ -45,20 +45,34 @@ pub fn step_cost(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
 /// The registry entries, with the crate's descriptions.
 pub fn experiments() -> Vec<super::Experiment> {
     type RunFn = fn(&ExperimentArgs) -> anyhow::Result<ExperimentReport>;
-    let entries: [(&str, RunFn); 6] = [
-        ("changepoint-cv2", cv2),
-        ("changepoint-tilt", tilt),
-        ("changepoint-unknown-rho", unknown_rho),
-        ("arx-identify", arx_identify),
-        ("arx-control", arx_control),
-        ("changepoint-step-cost", step_cost),
+    let entries: [(&str, &str, RunFn); 6] = [
+        ("changepoint-cv2", "paper 002 Table 1", cv2),
+        ("changepoint-tilt", "paper 002 Table 2", tilt),
+        ("changepoint-unknown-rho", "paper 002 Table 3", unknown_rho),
+        (
+            "arx-identify",
+            "paper 002 sec. 3.3 (Chen & Lai 2007's identification study)",
+            arx_identify,
+        ),
+        (
+            "arx-control",
+            "paper 002 sec. 3.4 (Chen & Lai 2007 Tables III-IV)",
+            arx_control,
+        ),
+        (
+            "changepoint-step-cost",
+            "no paper figure (cost per step of paper 002's filter)",
+            step_cost,
+        ),
     ];
     entries
         .into_iter()
-        .filter_map(|(name, run)| {
+        .filter_map(|(name, reproduces, run)| {
             cp::find(name).map(|e| super::Experiment {
                 name: e.name,
                 about: e.about,
+                reproduces,
+                params: e.params,
                 run,
             })
         })

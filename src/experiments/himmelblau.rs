@@ -225,6 +225,7 @@ mod tests {
     fn controlled_runs_escape_the_saddle() {
         let args = ExperimentArgs {
             runs: Some(3),
+            doc: crate::experiments::find("himmelblau").unwrap().params,
             ..ExperimentArgs::default()
         };
         let rep = run(&args).unwrap();

@@ -4,7 +4,16 @@
 
 use super::ExperimentArgs;
 use anyhow::{bail, Context};
+use beliefbus_core::experiment_params::debug_check_default;
 use std::str::FromStr;
+
+/// `v` comma-separated, as a list default is documented.
+pub fn join<T: std::fmt::Display>(v: &[T]) -> String {
+    v.iter()
+        .map(|x| x.to_string())
+        .collect::<Vec<_>>()
+        .join(",")
+}
 
 /// Reject parameters not in `known`.
 pub fn check_params(args: &ExperimentArgs, known: &[&str]) -> anyhow::Result<()> {
@@ -17,10 +26,15 @@ pub fn check_params(args: &ExperimentArgs, known: &[&str]) -> anyhow::Result<()>
 }
 
 /// The value of parameter `key`, or `default`.
-pub fn param<T: FromStr>(args: &ExperimentArgs, key: &str, default: T) -> anyhow::Result<T>
+pub fn param<T: FromStr + std::fmt::Display>(
+    args: &ExperimentArgs,
+    key: &str,
+    default: T,
+) -> anyhow::Result<T>
 where
     T::Err: std::fmt::Display,
 {
+    debug_check_default(args.doc, key, &default.to_string());
     match args.params.iter().rev().find(|(k, _)| k == key) {
         Some((_, v)) => v
             .parse::<T>()
@@ -31,7 +45,7 @@ where
 }
 
 /// A comma-separated list parameter.
-pub fn list_param<T: FromStr + Clone>(
+pub fn list_param<T: FromStr + Clone + std::fmt::Display>(
     args: &ExperimentArgs,
     key: &str,
     default: &[T],
@@ -39,6 +53,7 @@ pub fn list_param<T: FromStr + Clone>(
 where
     T::Err: std::fmt::Display,
 {
+    debug_check_default(args.doc, key, &join(default));
     match args.params.iter().rev().find(|(k, _)| k == key) {
         Some((_, v)) => v
             .split(',')

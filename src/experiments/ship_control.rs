@@ -367,6 +367,7 @@ mod tests {
                 ("pi_samples".into(), "8".into()),
                 ("mppi_samples".into(), "512".into()),
             ],
+            doc: crate::experiments::find("ship-control").unwrap().params,
             ..ExperimentArgs::default()
         };
         let rep = run(&args).unwrap();

@@ -19,6 +19,7 @@
 pub mod belief;
 pub mod chain;
 pub mod control;
+pub mod experiment_params;
 pub mod filter;
 pub mod math;
 pub mod model;

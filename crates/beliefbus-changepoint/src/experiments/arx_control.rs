@@ -36,19 +36,32 @@ use crate::arx::rbpf::{ArxRbpf, ArxRbpfConfig};
 use crate::arx::ThetaPrior;
 use crate::error::ChangepointError;
 use crate::resample::Scheme;
+use beliefbus_core::experiment_params::{keys, p, ParamDoc};
 use rand_distr::{Distribution, Normal};
 
 /// Parameters this experiment accepts.
-pub const PARAMS: &[&str] = &[
-    "n",
-    "particles",
-    "rho",
-    "bound",
-    "scheme",
-    "windows",
-    "forgetting",
-    "threads",
-    "period",
+pub const PARAMS: &[ParamDoc] = &[
+    p("n", "3000", "steps per sequence"),
+    p("particles", "50", "particles M"),
+    p("rho", "0.001", "change-point probability per step"),
+    p("bound", "1", "cv2 rejuvenation bound"),
+    p("scheme", "systematic", "resampling scheme"),
+    p(
+        "windows",
+        "25,50,100,200,400",
+        "sliding-window LS lengths swept",
+    ),
+    p(
+        "forgetting",
+        "0.95,0.97,0.98,0.99,0.995",
+        "forgetting factors swept",
+    ),
+    p(
+        "threads",
+        "= cores, at most 2",
+        "worker threads over sequences",
+    ),
+    p("period", "100", "period of the reference signal (steps)"),
 ];
 
 /// Closed-loop sweeps for the comparators.
@@ -205,7 +218,7 @@ pub fn run(
     seed: u64,
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
-    let p = Params::new(params, PARAMS)?;
+    let p = Params::new(params, &keys(PARAMS))?;
     let runs = check_runs(runs.unwrap_or(100))?;
     let n: usize = p.get("n", 3000)?;
     let period: usize = p.get("period", 100)?;

@@ -23,18 +23,31 @@ use crate::arx::rbpf::{ArxRbpf, ArxRbpfConfig};
 use crate::arx::ThetaPrior;
 use crate::error::ChangepointError;
 use crate::resample::Scheme;
+use beliefbus_core::experiment_params::{keys, p, ParamDoc};
 use std::time::Instant;
 
 /// Parameters this experiment accepts.
-pub const PARAMS: &[&str] = &[
-    "n",
-    "particles",
-    "rho",
-    "bound",
-    "scheme",
-    "windows",
-    "forgetting",
-    "threads",
+pub const PARAMS: &[ParamDoc] = &[
+    p("n", "3000", "steps per sequence"),
+    p("particles", "50", "particles M"),
+    p("rho", "0.001", "change-point probability per step"),
+    p("bound", "1", "cv2 rejuvenation bound"),
+    p("scheme", "systematic", "resampling scheme"),
+    p(
+        "windows",
+        "25,50,100,200,300,500,750,1000",
+        "sliding-window LS lengths swept (best reported)",
+    ),
+    p(
+        "forgetting",
+        "0.95,0.97,0.98,0.99,0.995,0.997,0.998,0.999",
+        "forgetting factors swept (best reported)",
+    ),
+    p(
+        "threads",
+        "= cores, at most 2",
+        "worker threads over sequences",
+    ),
 ];
 
 /// Default sweeps (documented in the report's params).
@@ -88,7 +101,7 @@ pub fn run(
     seed: u64,
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
-    let p = Params::new(params, PARAMS)?;
+    let p = Params::new(params, &keys(PARAMS))?;
     let runs = check_runs(runs.unwrap_or(100))?;
     let n: usize = p.get("n", 3000)?;
     let cfg = ArxRbpfConfig {

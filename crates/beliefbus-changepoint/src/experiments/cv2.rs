@@ -15,19 +15,48 @@ use crate::error::ChangepointError;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
 use crate::meanshift::MeanShiftModel;
 use crate::resample::Scheme;
+use beliefbus_core::experiment_params::{keys, p, ParamDoc};
 
 /// Parameters this experiment accepts.
-pub const PARAMS: &[&str] = &[
-    "n",
-    "particles",
-    "sigma",
-    "rho",
-    "bounds",
-    "schemes",
-    "threads",
-    "exact",
-    "exact_prune",
-    "estimate",
+pub const PARAMS: &[ParamDoc] = &[
+    p("n", "10000", "observations per sequence"),
+    p("particles", "50", "particles M"),
+    p(
+        "sigma",
+        "1",
+        "jump size standard deviation sigma of the mean-shift model",
+    ),
+    p("rho", "0.001", "change-point probability per step"),
+    p(
+        "bounds",
+        "0,0.5,1,2,4,10,20,30,inf",
+        "cv2 rejuvenation bounds swept (inf: never resample)",
+    ),
+    p(
+        "schemes",
+        "multinomial,residual,systematic",
+        "resampling schemes swept",
+    ),
+    p(
+        "threads",
+        "= cores, at most 2",
+        "worker threads over sequences",
+    ),
+    p(
+        "exact",
+        "false",
+        "also run the exact filter (posterior over the last change time)",
+    ),
+    p(
+        "exact_prune",
+        "20",
+        "exact filter: drop change times whose log weight is this far below the best",
+    ),
+    p(
+        "estimate",
+        "before",
+        "estimate before or after resampling at a rejuvenation step",
+    ),
 ];
 
 /// One run: every (scheme, bound) pass, and the exact filter's if asked.
@@ -39,7 +68,7 @@ pub fn run(
     seed: u64,
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
-    let p = Params::new(params, PARAMS)?;
+    let p = Params::new(params, &keys(PARAMS))?;
     let runs = check_runs(runs.unwrap_or(100))?;
     let n: usize = p.get("n", 10_000)?;
     let m: usize = p.get("particles", 50)?;

@@ -24,7 +24,7 @@ pub type RunFn = fn(Option<usize>, u64, &[(String, String)]) -> Result<Report, C
 pub struct Experiment {
     pub name: &'static str,
     pub about: &'static str,
-    pub params: &'static [&'static str],
+    pub params: &'static [beliefbus_core::experiment_params::ParamDoc],
     pub run: RunFn,
 }
 

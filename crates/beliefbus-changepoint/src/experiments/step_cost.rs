@@ -13,10 +13,25 @@ use crate::meanshift::bootstrap::MeanShiftBootstrap;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
 use crate::meanshift::MeanShiftModel;
 use crate::resample::Scheme;
+use beliefbus_core::experiment_params::{keys, p, ParamDoc};
 use std::time::Instant;
 
 /// Parameters this experiment accepts.
-pub const PARAMS: &[&str] = &["n", "particles", "sigma", "rho", "threads"];
+pub const PARAMS: &[ParamDoc] = &[
+    p("n", "10000", "observations per sequence"),
+    p("particles", "50,500", "particle counts M compared"),
+    p(
+        "sigma",
+        "1",
+        "jump size standard deviation sigma of the mean-shift model",
+    ),
+    p("rho", "0.001", "change-point probability per step"),
+    p(
+        "threads",
+        "= cores, at most 2",
+        "worker threads over sequences",
+    ),
+];
 
 fn bootstrap_pass(
     model: MeanShiftModel,
@@ -46,7 +61,7 @@ pub fn run(
     seed: u64,
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
-    let p = Params::new(params, PARAMS)?;
+    let p = Params::new(params, &keys(PARAMS))?;
     let runs = check_runs(runs.unwrap_or(20))?;
     let n: usize = p.get("n", 10_000)?;
     let ms: Vec<usize> = p.list("particles", &[50, 500])?;

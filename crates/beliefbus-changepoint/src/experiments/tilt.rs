@@ -11,17 +11,34 @@ use crate::error::ChangepointError;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
 use crate::meanshift::MeanShiftModel;
 use crate::resample::Scheme;
+use beliefbus_core::experiment_params::{keys, p, ParamDoc};
 
 /// Parameters this experiment accepts.
-pub const PARAMS: &[&str] = &[
-    "n",
-    "particles",
-    "sigma",
-    "rho",
-    "bound",
-    "ratios",
-    "scheme",
-    "threads",
+pub const PARAMS: &[ParamDoc] = &[
+    p("n", "10000", "observations per sequence"),
+    p("particles", "50", "particles M"),
+    p(
+        "sigma",
+        "1",
+        "jump size standard deviation sigma of the mean-shift model",
+    ),
+    p("rho", "0.001", "change-point probability per step"),
+    p("bound", "1", "cv2 rejuvenation bound"),
+    p(
+        "ratios",
+        "= Table 2 ratios r",
+        "tilt ratios r of the proposal rho~ = r*rho (must include 1)",
+    ),
+    p(
+        "scheme",
+        "systematic",
+        "resampling scheme: multinomial, residual or systematic",
+    ),
+    p(
+        "threads",
+        "= cores, at most 2",
+        "worker threads over sequences",
+    ),
 ];
 
 /// Run the experiment: `runs` sequences (default 100) from `seed`.
@@ -30,7 +47,7 @@ pub fn run(
     seed: u64,
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
-    let p = Params::new(params, PARAMS)?;
+    let p = Params::new(params, &keys(PARAMS))?;
     let runs = check_runs(runs.unwrap_or(100))?;
     let n: usize = p.get("n", 10_000)?;
     let m: usize = p.get("particles", 50)?;

@@ -16,19 +16,36 @@ use crate::error::ChangepointError;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
 use crate::meanshift::MeanShiftModel;
 use crate::resample::Scheme;
+use beliefbus_core::experiment_params::{keys, p, ParamDoc};
 use rand_distr::{Beta, Distribution};
 
 /// Parameters this experiment accepts.
-pub const PARAMS: &[&str] = &[
-    "n",
-    "particles",
-    "sigma",
-    "rho",
-    "alpha",
-    "beta",
-    "bounds",
-    "scheme",
-    "threads",
+pub const PARAMS: &[ParamDoc] = &[
+    p("n", "10000", "observations per sequence"),
+    p("particles", "50", "particles M"),
+    p(
+        "sigma",
+        "1",
+        "jump size standard deviation sigma of the mean-shift model",
+    ),
+    p("rho", "0.001", "change-point probability per step"),
+    p("alpha", "1", "Beta(alpha, beta) prior of rho"),
+    p("beta", "999", "Beta(alpha, beta) prior of rho"),
+    p(
+        "bounds",
+        "0,0.5,1,2,4,10,20,30,inf",
+        "cv2 rejuvenation bounds swept",
+    ),
+    p(
+        "scheme",
+        "systematic",
+        "resampling scheme: multinomial, residual or systematic",
+    ),
+    p(
+        "threads",
+        "= cores, at most 2",
+        "worker threads over sequences",
+    ),
 ];
 
 struct RunOut {
@@ -44,7 +61,7 @@ pub fn run(
     seed: u64,
     params: &[(String, String)],
 ) -> Result<Report, ChangepointError> {
-    let p = Params::new(params, PARAMS)?;
+    let p = Params::new(params, &keys(PARAMS))?;
     let runs = check_runs(runs.unwrap_or(100))?;
     let n: usize = p.get("n", 10_000)?;
     let m: usize = p.get("particles", 50)?;

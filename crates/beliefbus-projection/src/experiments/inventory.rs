@@ -43,23 +43,65 @@ use crate::inventory::Inventory;
 use crate::parallel::{default_threads, map_indexed};
 use crate::policy::{Criterion, GridPolicy, PolicyError};
 use crate::solve::{solve_policy, SolveOptions};
+use beliefbus_core::experiment_params::{keys, p, ParamDoc};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 pub use super::paper::Protocol;
 
-const KNOWN: &[&str] = &[
-    "sigmas",
-    "horizon",
-    "particles",
-    "mc_samples",
-    "threads",
-    "policy_dir",
-    "scan_steps",
-    "scan_runs",
-    "batches",
-    "mean_max",
-    "cost_samples",
+/// The documented `--param` keys of both inventory experiments.
+pub const PARAMS: &[ParamDoc] = &[
+    p(
+        "sigmas",
+        "0.1,0.3,0.5,0.7,0.9,1.1,1.3,1.5,1.7,1.9,2.1,2.3,2.5,2.7,2.9,3.1,3.3",
+        "observation noise levels sigma swept (the tables' rows)",
+    ),
+    p(
+        "horizon",
+        "= 100000 (average) or 40 (discounted)",
+        "periods of one run",
+    ),
+    p("particles", "200", "particles of each policy's filter"),
+    p(
+        "mc_samples",
+        "500",
+        "Monte Carlo samples per grid point and action for the projected-belief MDP's transitions",
+    ),
+    p(
+        "threads",
+        "0",
+        "worker threads (0: the machine's parallelism, at most 2)",
+    ),
+    p(
+        "policy_dir",
+        "",
+        "directory to cache solved policies in (empty: none)",
+    ),
+    p(
+        "scan_steps",
+        "2000000",
+        "periods of the full-observation threshold scan (average cost) that finds L*",
+    ),
+    p(
+        "scan_runs",
+        "20000",
+        "runs of the threshold scan (discounted cost)",
+    ),
+    p(
+        "batches",
+        "20",
+        "batches for the batch-means standard error (average cost)",
+    ),
+    p(
+        "mean_max",
+        "15",
+        "the largest mean of the belief grid (the paper's 15)",
+    ),
+    p(
+        "cost_samples",
+        "20000",
+        "Monte Carlo samples N_c of each one-step cost",
+    ),
 ];
 
 /// The settings of one experiment run.
@@ -86,7 +128,7 @@ pub struct Settings {
 impl Settings {
     /// Defaults of `protocol` overridden by `args`.
     pub fn from_args(protocol: Protocol, args: &ExperimentArgs) -> Result<Self, ExperimentError> {
-        check_params(args, KNOWN)?;
+        check_params(args, &keys(PARAMS))?;
         let (runs, horizon) = match protocol {
             Protocol::Average => (1, 100_000),
             Protocol::Discounted { .. } => (1000, 40),
