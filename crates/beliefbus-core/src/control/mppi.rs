@@ -17,7 +17,8 @@
 //! u_t     ← clamp(u_t + SG(Σ_k w⁽ᵏ⁾ ε⁽ᵏ⁾)_t)
 //! ```
 //!
-//! q and φ are [`TrackingCost`]'s running and terminal costs, r the
+//! q and φ are the running and terminal costs of any [`PathCost`] (the
+//! pipeline's is [`TrackingCost`], scored branch-free in batches), r the
 //! `control_weight`. SG is a 5-point quadratic Savitzky–Golay filter applied
 //! to the update (nav2 smooths the sequence; smoothing the increment keeps
 //! a converged nominal sequence exactly fixed when the update is zero).
@@ -39,6 +40,7 @@
 use super::cost::TrackingCost;
 use super::{ControlError, ControlInfo, Controller};
 use crate::belief::Gaussian;
+use crate::model::path_cost::PathCost;
 use crate::model::SdeModel;
 use crate::rng::{self, SimRng};
 use crate::{MAX_CONTROL, MAX_STATE};
@@ -192,64 +194,6 @@ fn savitzky_golay(src: &[f64], dst: &mut [f64], steps: usize, c: usize) {
     }
 }
 
-/// [`TrackingCost`] evaluated for rollouts: the same q(x) and φ(x), with
-/// the barrier's radius compared squared first (a `sqrt` only outside the
-/// disc, no `hypot`: the latter costs ≈ 25 ns, as much as a whole step).
-#[derive(Clone, Copy, Debug)]
-struct RolloutCost {
-    dim: usize,
-    goal: [f64; MAX_STATE],
-    q: [f64; MAX_STATE],
-    qf: [f64; MAX_STATE],
-    /// (axis a, axis b, R, R², weight); weight 0 disables.
-    barrier: (usize, usize, f64, f64, f64),
-}
-
-impl RolloutCost {
-    fn new(c: &TrackingCost) -> Self {
-        let barrier = match c.barrier {
-            Some(b) => (b.axes.0, b.axes.1, b.radius, b.radius * b.radius, b.weight),
-            None => (0, 0, 0.0, 0.0, 0.0),
-        };
-        Self {
-            dim: c.dim,
-            goal: c.goal,
-            q: c.q,
-            qf: c.qf,
-            barrier,
-        }
-    }
-
-    /// S_k += scale · (Σ_i w_i (x_ik − goal_i)² + barrier(x_k)) for the K
-    /// states of `x` (structure-of-arrays), branch-free.
-    #[inline(always)]
-    fn add_soa(&self, w: &[f64; MAX_STATE], scale: f64, k: usize, x: &[f64], s: &mut [f64]) {
-        let s = &mut s[..k];
-        for i in 0..self.dim {
-            let (g, wi) = (self.goal[i], w[i] * scale);
-            if wi == 0.0 {
-                continue;
-            }
-            let xi = &x[i * k..(i + 1) * k];
-            for n in 0..k {
-                let e = xi[n] - g;
-                s[n] += wi * (e * e);
-            }
-        }
-        let (a, bx, r, r2, bw) = self.barrier;
-        if bw != 0.0 {
-            let (xa, xb) = (&x[a * k..(a + 1) * k], &x[bx * k..(bx + 1) * k]);
-            let bw = bw * scale;
-            for n in 0..k {
-                let rho2 = xa[n] * xa[n] + xb[n] * xb[n];
-                // max(·, R²) keeps e = 0 inside the disc without a branch.
-                let e = rho2.max(r2).sqrt() - r;
-                s[n] += bw * (e * e);
-            }
-        }
-    }
-}
-
 /// Σ a_k b_k with four independent partial sums (a single running sum is a
 /// chain of dependent adds the CPU cannot overlap).
 fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -269,7 +213,7 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// What a rollout reads.
-struct RolloutParams<'a> {
+struct RolloutParams<'a, C: PathCost> {
     d: usize,
     c: usize,
     k: usize,
@@ -279,7 +223,7 @@ struct RolloutParams<'a> {
     u_min: &'a [f64; MAX_CONTROL],
     u_max: &'a [f64; MAX_CONTROL],
     u_nom: &'a [f64],
-    cost: &'a RolloutCost,
+    cost: &'a C,
 }
 
 /// What a rollout writes (all structure-of-arrays, K per component).
@@ -294,7 +238,12 @@ struct RolloutBuffers<'a> {
 /// [`rollout_soa`] compiled for AVX2 + FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn rollout_avx2<M: SdeModel>(model: &M, p: &RolloutParams, b: &mut RolloutBuffers, x0: &[f64]) {
+fn rollout_avx2<M: SdeModel, C: PathCost>(
+    model: &M,
+    p: &RolloutParams<C>,
+    b: &mut RolloutBuffers,
+    x0: &[f64],
+) {
     rollout_soa(model, p, b, x0)
 }
 
@@ -304,7 +253,12 @@ fn rollout_avx2<M: SdeModel>(model: &M, p: &RolloutParams, b: &mut RolloutBuffer
 /// Every inner loop runs over k on contiguous arrays, without branches, so
 /// the compiler vectorises it.
 #[inline(always)]
-fn rollout_soa<M: SdeModel>(model: &M, p: &RolloutParams, b: &mut RolloutBuffers, x0: &[f64]) {
+fn rollout_soa<M: SdeModel, C: PathCost>(
+    model: &M,
+    p: &RolloutParams<C>,
+    b: &mut RolloutBuffers,
+    x0: &[f64],
+) {
     let (d, c, k) = (p.d, p.c, p.k);
     for i in 0..d {
         b.x[i * k..(i + 1) * k].fill(x0[i]);
@@ -331,9 +285,9 @@ fn rollout_soa<M: SdeModel>(model: &M, p: &RolloutParams, b: &mut RolloutBuffers
         for (x, f) in b.x.iter_mut().zip(b.f.iter()) {
             *x += f * p.dt;
         }
-        cost.add_soa(&cost.q, p.dt, k, b.x, b.costs);
+        cost.add_running_soa(p.dt, k, b.x, b.costs);
     }
-    cost.add_soa(&cost.qf, 1.0, k, b.x, b.costs);
+    cost.add_terminal_soa(1.0, k, b.x, b.costs);
     for s in b.costs.iter_mut() {
         if !s.is_finite() {
             *s = f64::INFINITY;
@@ -341,11 +295,10 @@ fn rollout_soa<M: SdeModel>(model: &M, p: &RolloutParams, b: &mut RolloutBuffers
     }
 }
 
-/// MPPI controller on a model `M` with a tracking cost.
-pub struct Mppi<M: SdeModel> {
+/// MPPI controller on a model `M` with a state cost `C`.
+pub struct Mppi<M: SdeModel, C: PathCost = TrackingCost> {
     model: M,
-    cost: TrackingCost,
-    fast_cost: RolloutCost,
+    cost: C,
     cfg: MppiConfig,
     d: usize,
     c: usize,
@@ -375,9 +328,9 @@ pub struct Mppi<M: SdeModel> {
     rng: SimRng,
 }
 
-impl<M: SdeModel> Mppi<M> {
+impl<M: SdeModel, C: PathCost> Mppi<M, C> {
     /// Build MPPI on `model` with state cost `cost`.
-    pub fn new(model: M, cost: TrackingCost, cfg: &MppiConfig) -> Result<Self, MppiConfigError> {
+    pub fn new(model: M, cost: C, cfg: &MppiConfig) -> Result<Self, MppiConfigError> {
         let dims = model.dims();
         let c = dims.control;
         if c == 0 || c > MAX_CONTROL {
@@ -386,20 +339,14 @@ impl<M: SdeModel> Mppi<M> {
                 format!("control dimension {c} must be in 1..={MAX_CONTROL}"),
             ));
         }
-        if dims.state > MAX_STATE || cost.dim > dims.state {
+        if dims.state > MAX_STATE {
             return Err(bad(
-                "cost",
-                format!(
-                    "cost dimension {} exceeds the state dimension {}",
-                    cost.dim, dims.state
-                ),
+                "model",
+                format!("state dimension {} exceeds {MAX_STATE}", dims.state),
             ));
         }
-        if let Some(b) = cost.barrier {
-            if b.axes.0 >= dims.state || b.axes.1 >= dims.state {
-                return Err(bad("cost", "barrier axes outside the state"));
-            }
-        }
+        cost.check_state_dim(dims.state)
+            .map_err(|e| bad("cost", e))?;
         cfg.validate(c)?;
         let (k, steps, d) = (cfg.samples, cfg.horizon_steps, dims.state);
         let arr = |v: &[f64]| {
@@ -410,7 +357,6 @@ impl<M: SdeModel> Mppi<M> {
         let (noise_std, u_min, u_max) = (arr(&cfg.noise_std), arr(&cfg.u_min), arr(&cfg.u_max));
         let mut m = Self {
             model,
-            fast_cost: RolloutCost::new(&cost),
             cost,
             cfg: cfg.clone(),
             d,
@@ -482,7 +428,7 @@ impl<M: SdeModel> Mppi<M> {
     }
 
     /// The state cost.
-    pub fn cost(&self) -> &TrackingCost {
+    pub fn cost(&self) -> &C {
         &self.cost
     }
 
@@ -551,7 +497,7 @@ impl<M: SdeModel> Mppi<M> {
             u_min: &self.u_min,
             u_max: &self.u_max,
             u_nom: &self.u_nom,
-            cost: &self.fast_cost,
+            cost: &self.cost,
         };
         #[cfg(target_arch = "x86_64")]
         {
@@ -612,7 +558,7 @@ impl<M: SdeModel> Mppi<M> {
     }
 }
 
-impl<M: SdeModel> Controller for Mppi<M> {
+impl<M: SdeModel, C: PathCost> Controller for Mppi<M, C> {
     fn prepare(&mut self) {
         Mppi::prepare(self)
     }
@@ -625,7 +571,6 @@ impl<M: SdeModel> Controller for Mppi<M> {
     }
     fn set_goal(&mut self, goal: &[f64]) {
         self.cost.set_goal(goal);
-        self.fast_cost = RolloutCost::new(&self.cost);
     }
     fn reset(&mut self) {
         self.u_nom.fill(0.0);
@@ -713,51 +658,6 @@ mod tests {
 
     fn di_cost() -> TrackingCost {
         TrackingCost::new(&[10.0, 1.0], &[20.0, 5.0], None)
-    }
-
-    #[test]
-    fn rollout_cost_equals_the_tracking_cost() {
-        let mut c = TrackingCost::new(
-            &[1.0, 2.0, 0.1, 0.3],
-            &[5.0, 4.0, 1.0, 0.5],
-            Some(crate::control::cost::DiscBarrier {
-                axes: (0, 1),
-                radius: 3.0,
-                weight: 40.0,
-            }),
-        );
-        c.set_goal(&[1.0, -2.0, 0.5]);
-        let fast = RolloutCost::new(&c);
-        let plain_cost = TrackingCost::new(&[1.0; 4], &[2.0; 4], None);
-        let plain = RolloutCost::new(&plain_cost);
-        let mut rng = rng::stream(8, 8);
-        // 1001 states (not a multiple of any lane count), SoA.
-        let n = 1001;
-        let mut x = vec![0.0; 4 * n];
-        for v in x.iter_mut() {
-            *v = rng.random_range(-5.0..5.0);
-        }
-        let (dt, prior) = (0.04, 0.7);
-        let (mut run, mut term, mut pl) = (vec![prior; n], vec![prior; n], vec![0.0; n]);
-        fast.add_soa(&fast.q, dt, n, &x, &mut run);
-        fast.add_soa(&fast.qf, 1.0, n, &x, &mut term);
-        plain.add_soa(&plain.q, 1.0, n, &x, &mut pl);
-        let mut inside = 0;
-        for k in 0..n {
-            let xk: [f64; 4] = std::array::from_fn(|i| x[i * n + k]);
-            if xk[0].hypot(xk[1]) <= 3.0 {
-                inside += 1;
-            }
-            for (a, b) in [
-                (run[k], prior + dt * c.running(&xk)),
-                (term[k], prior + c.terminal(&xk)),
-            ] {
-                assert!((a - b).abs() <= 1e-12 * b.abs().max(1.0), "{a} vs {b}");
-            }
-            let want: f64 = xk.iter().map(|v| v * v).sum();
-            assert!((pl[k] - want).abs() < 1e-12);
-        }
-        assert!(inside > 0 && inside < n, "both sides of the barrier");
     }
 
     #[test]

@@ -285,84 +285,6 @@ impl PathIntegralConfig {
     }
 }
 
-impl PathCost for TrackingCost {
-    fn running(&self, x: &[f64]) -> f64 {
-        tracking_value(self, &self.q, x)
-    }
-    fn running_derivatives(&self, x: &[f64], g: &mut [f64], h: &mut [f64]) -> f64 {
-        tracking_derivatives(self, &self.q, x, g, h)
-    }
-    fn terminal(&self, x: &[f64]) -> f64 {
-        tracking_value(self, &self.qf, x)
-    }
-    fn terminal_derivatives(&self, x: &[f64], g: &mut [f64], h: &mut [f64]) -> f64 {
-        tracking_derivatives(self, &self.qf, x, g, h)
-    }
-    fn set_goal(&mut self, goal: &[f64]) {
-        TrackingCost::set_goal(self, goal)
-    }
-}
-
-/// Σ wᵢ(xᵢ − gᵢ)² + w_b max(0, ρ − R)² (ρ² compared first: no square root
-/// inside the disc).
-fn tracking_value(c: &TrackingCost, w: &[f64; MAX_STATE], x: &[f64]) -> f64 {
-    let mut v = 0.0;
-    for i in 0..c.dim {
-        let e = x[i] - c.goal[i];
-        v += w[i] * e * e;
-    }
-    if let Some(b) = c.barrier {
-        let rho2 = x[b.axes.0] * x[b.axes.0] + x[b.axes.1] * x[b.axes.1];
-        if rho2 > b.radius * b.radius {
-            let ex = rho2.sqrt() - b.radius;
-            v += b.weight * ex * ex;
-        }
-    }
-    v
-}
-
-/// Value, gradient and Hessian of [`tracking_value`]; on the disc axes the
-/// barrier adds 2w_b [(ρ − R) x/ρ] to the gradient and
-/// 2w_b [x xᵀ/ρ² + (ρ − R)(I/ρ − x xᵀ/ρ³)] to the Hessian.
-fn tracking_derivatives(
-    c: &TrackingCost,
-    w: &[f64; MAX_STATE],
-    x: &[f64],
-    g: &mut [f64],
-    h: &mut [f64],
-) -> f64 {
-    let d = c.dim;
-    h[..d * d].fill(0.0);
-    let mut v = 0.0;
-    for i in 0..d {
-        let e = x[i] - c.goal[i];
-        v += w[i] * e * e;
-        g[i] = 2.0 * w[i] * e;
-        h[i + i * d] = 2.0 * w[i];
-    }
-    if let Some(b) = c.barrier {
-        let (ia, ib) = b.axes;
-        let rho2 = x[ia] * x[ia] + x[ib] * x[ib];
-        if rho2 > b.radius * b.radius {
-            let rho = rho2.sqrt();
-            let ex = rho - b.radius;
-            v += b.weight * ex * ex;
-            let xs = [x[ia], x[ib]];
-            let idx = [ia, ib];
-            for (p, &i) in idx.iter().enumerate() {
-                g[i] += 2.0 * b.weight * ex * xs[p] / rho;
-                for (q, &j) in idx.iter().enumerate() {
-                    let delta = if p == q { 1.0 } else { 0.0 };
-                    let outer = xs[p] * xs[q];
-                    h[i + j * d] +=
-                        2.0 * b.weight * (outer / rho2 + ex * (delta / rho - outer / (rho2 * rho)));
-                }
-            }
-        }
-    }
-    v
-}
-
 /// Diagnostics of the last control.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PathIntegralStats {
@@ -714,39 +636,6 @@ mod tests {
                 weight: 50.0,
             }),
         )
-    }
-
-    #[test]
-    fn tracking_cost_hessian_matches_finite_differences() {
-        let mut c = ship_cost();
-        c.set_goal(&[1.0, -2.0, 0.0, 0.0]);
-        for x in [[0.5, 0.3, 1.0, -1.0], [7.0, 6.0, 0.2, 0.1]] {
-            let (mut g, mut h) = ([0.0; 4], [0.0; 16]);
-            let v = PathCost::running_derivatives(&c, &x, &mut g, &mut h);
-            assert!((v - TrackingCost::running(&c, &x)).abs() < 1e-12);
-            assert!((PathCost::terminal(&c, &x) - TrackingCost::terminal(&c, &x)).abs() < 1e-12);
-            let mut g_ref = [0.0; 4];
-            c.running_grad(&x, &mut g_ref);
-            for i in 0..4 {
-                assert!((g[i] - g_ref[i]).abs() < 1e-12);
-            }
-            for j in 0..4 {
-                let (mut xp, mut xm) = (x, x);
-                xp[j] += 1e-6;
-                xm[j] -= 1e-6;
-                let (mut gp, mut gm, mut hh) = ([0.0; 4], [0.0; 4], [0.0; 16]);
-                PathCost::running_derivatives(&c, &xp, &mut gp, &mut hh);
-                PathCost::running_derivatives(&c, &xm, &mut gm, &mut hh);
-                for i in 0..4 {
-                    let fd = (gp[i] - gm[i]) / 2e-6;
-                    assert!(
-                        (fd - h[i + 4 * j]).abs() < 1e-4,
-                        "({i},{j}) {fd} vs {}",
-                        h[i + 4 * j]
-                    );
-                }
-            }
-        }
     }
 
     #[test]

@@ -36,6 +36,7 @@ use super::newton::Objective;
 use crate::model::affine::{check_condition_8, AffineError, ControlAffine, PathStructure};
 use crate::{MAX_CONTROL, MAX_STATE};
 
+pub use crate::control::cost::DiagonalQuadraticCost;
 pub use crate::model::path_cost::{Gate, PathCost, MAX_GATE_INTERVALS};
 
 /// Constants of a path problem: dimensions, γ, the noise precision and the
@@ -921,68 +922,6 @@ impl<M: ControlAffine + ?Sized, C: PathCost + ?Sized> Objective for PathFunction
                 last_step: usize::MAX,
             },
         )
-    }
-}
-
-/// A quadratic cost ½(x−g)ᵀW(x−g) for V and ½(x−g)ᵀW_f(x−g) for Φ with
-/// diagonal weights (tests, the arm, the double slit's Φ = x²/2).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct DiagonalQuadraticCost {
-    pub dim: usize,
-    pub goal: [f64; MAX_STATE],
-    pub w: [f64; MAX_STATE],
-    pub wf: [f64; MAX_STATE],
-}
-
-impl DiagonalQuadraticCost {
-    /// V = ½ Σ w_i (x_i − g_i)², Φ = ½ Σ wf_i (x_i − g_i)², goal 0.
-    pub fn new(w: &[f64], wf: &[f64]) -> Self {
-        assert_eq!(w.len(), wf.len());
-        let mut c = Self {
-            dim: w.len(),
-            goal: [0.0; MAX_STATE],
-            w: [0.0; MAX_STATE],
-            wf: [0.0; MAX_STATE],
-        };
-        c.w[..w.len()].copy_from_slice(w);
-        c.wf[..wf.len()].copy_from_slice(wf);
-        c
-    }
-
-    fn quad(&self, wt: &[f64; MAX_STATE], x: &[f64], g: &mut [f64], h: &mut [f64]) -> f64 {
-        let d = self.dim;
-        h[..d * d].fill(0.0);
-        let mut v = 0.0;
-        for i in 0..d {
-            let e = x[i] - self.goal[i];
-            v += 0.5 * wt[i] * e * e;
-            g[i] = wt[i] * e;
-            h[i + i * d] = wt[i];
-        }
-        v
-    }
-}
-
-impl PathCost for DiagonalQuadraticCost {
-    fn running(&self, x: &[f64]) -> f64 {
-        (0..self.dim)
-            .map(|i| 0.5 * self.w[i] * (x[i] - self.goal[i]).powi(2))
-            .sum()
-    }
-    fn running_derivatives(&self, x: &[f64], g: &mut [f64], h: &mut [f64]) -> f64 {
-        self.quad(&self.w, x, g, h)
-    }
-    fn terminal(&self, x: &[f64]) -> f64 {
-        (0..self.dim)
-            .map(|i| 0.5 * self.wf[i] * (x[i] - self.goal[i]).powi(2))
-            .sum()
-    }
-    fn terminal_derivatives(&self, x: &[f64], g: &mut [f64], h: &mut [f64]) -> f64 {
-        self.quad(&self.wf, x, g, h)
-    }
-    fn set_goal(&mut self, goal: &[f64]) {
-        let k = goal.len().min(self.dim);
-        self.goal[..k].copy_from_slice(&goal[..k]);
     }
 }
 
