@@ -26,7 +26,7 @@
 use super::pi_common::{check_params, list_param, mean_std, param, percentile, thread_cpu_us};
 use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::belief::Gaussian;
-use crate::control::cost::{DiscBarrier, TrackingCost};
+use crate::control::cost::{DiscBarrier, PathCost, TrackingCost};
 use crate::control::mppi::{Mppi, MppiConfig};
 use crate::control::path_integral::{
     BeliefMode, GradientConfig, PathIntegralConfig, PathIntegralController, WarmShift,

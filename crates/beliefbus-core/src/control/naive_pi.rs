@@ -118,7 +118,9 @@ impl NaivePathIntegral {
         self.setup.gamma
     }
 
-    /// ψ and u at x over n steps from M unguided paths.
+    /// ψ and u at x over n steps from M unguided paths. One function: the
+    /// sample loop advances the 1 + 2p variants (x, x ± h g_j) in lockstep
+    /// with the same noise, and that shared state is the whole body.
     #[allow(clippy::too_many_arguments)]
     pub fn estimate<M: ControlAffine + ?Sized, C: PathCost + ?Sized>(
         &self,

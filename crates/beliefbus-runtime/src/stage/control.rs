@@ -22,7 +22,7 @@ use super::{
     StatsPort,
 };
 use crate::config::{ControlBackend, PipelineConfig};
-use crate::control::cost::TrackingCost;
+use crate::control::cost::{PathCost, TrackingCost};
 use crate::control::mppi::Mppi;
 use crate::control::path_integral::PathIntegralController;
 use crate::control::waypoints::WaypointTracker;

@@ -85,6 +85,8 @@ impl RandomMapWorkspace {
 
     /// Random-map sample for the reference draw `xi`, written into `x`.
     /// `l` is the factor of the Hessian at the minimiser μ, φ = F(μ).
+    /// One function: the bracketing and the safeguarded Newton refine one
+    /// bracket (lo, hi) and one evaluation closure.
     pub fn sample<O: Objective + ?Sized>(
         &mut self,
         obj: &O,
@@ -271,6 +273,8 @@ mod tests {
     /// A non-Gaussian convex 2-D target: E[x₁²] and the normaliser Z by the
     /// corrected random map agree with quadrature; the printed formula does
     /// not (notes, Appendix A check 2).
+    /// Long: the quadrature reference is written out inline, beside the
+    /// sampled moments it checks.
     #[test]
     fn random_map_moments_match_quadrature() {
         let f = |x: &[f64]| {

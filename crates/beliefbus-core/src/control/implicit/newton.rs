@@ -187,7 +187,9 @@ impl NewtonWorkspace {
     /// Minimise `obj` starting from `x` (overwritten by the minimiser μ).
     /// On success `self.l` is the factor of the Hessian at μ and `self.g`
     /// the gradient there (zero up to the tolerance, except in pinned
-    /// coordinates).
+    /// coordinates). One function: the iteration, its Armijo line search
+    /// and the factor reuse share the step, the trial point and the stale
+    /// factor; apart, each piece would need all of them.
     pub fn minimise<O: Objective + ?Sized>(
         &mut self,
         obj: &O,
