@@ -141,14 +141,14 @@ pub fn from_table_in(
         }
         _ => None,
     };
-    let text = toml::to_string(&table).map_err(|e| ConfigError::new("", e.to_string()))?;
-    let mut cfg: PipelineConfig = toml::from_str(&text).map_err(|e| {
-        let key = e
-            .span()
-            .and_then(|s| key_at(&text, s.start))
-            .unwrap_or_default();
-        ConfigError::new(key, e.message())
-    })?;
+    // The path of the failing key comes from the deserializer itself (a
+    // nested struct's unknown or mistyped field is named in full).
+    let mut cfg: PipelineConfig = serde_path_to_error::deserialize(toml::Value::Table(table))
+        .map_err(|e: serde_path_to_error::Error<toml::de::Error>| {
+            let path = e.path().to_string();
+            let key = if path == "." { String::new() } else { path };
+            ConfigError::new(key, e.inner().message())
+        })?;
     let entry = entry.ok_or_else(|| ConfigError::new("run.scenario", "is required"))?;
     super::validate::positive("plant.sensor_rate_hz", cfg.plant.sensor_rate_hz)?;
     let ctx = BuildContext {
@@ -170,37 +170,6 @@ pub fn from_table_in(
     cfg.fill_from_scenario();
     cfg.validate()?;
     Ok(cfg)
-}
-
-/// The dotted key whose key or value span contains byte `at` of `text`.
-fn key_at(text: &str, at: usize) -> Option<String> {
-    use toml::de::{DeTable, DeValue};
-    let doc = DeTable::parse(text).ok()?;
-    fn walk(t: &DeTable, at: usize, path: &mut Vec<String>) -> bool {
-        for (k, v) in t.iter() {
-            let ks = k.span();
-            let vs = v.span();
-            if (ks.start <= at && at < ks.end.max(ks.start + 1)) || (vs.start <= at && at < vs.end)
-            {
-                path.push(k.get_ref().to_string());
-                if let DeValue::Table(inner) = v.get_ref() {
-                    walk(inner, at, path);
-                }
-                return true;
-            }
-            if let DeValue::Table(inner) = v.get_ref() {
-                path.push(k.get_ref().to_string());
-                if walk(inner, at, path) {
-                    return true;
-                }
-                path.pop();
-            }
-        }
-        false
-    }
-    let mut path = Vec::new();
-    walk(doc.get_ref(), at, &mut path);
-    (!path.is_empty()).then(|| path.join("."))
 }
 
 /// Where a run's config comes from: a TOML file, or the config a registered
