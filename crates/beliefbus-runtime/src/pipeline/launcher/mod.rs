@@ -191,11 +191,12 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
             left.len()
         );
     }
-    let mut json = input.to_json();
-    report::merge_supervision(&mut json, extra);
-    if let Some(line) = report::supervision_line(&json) {
+    let mut rep = input.report();
+    report::merge_supervision(&mut rep, extra);
+    if let Some(line) = report::supervision_line(&rep) {
         println!("{line}");
     }
+    let json = serde_json::to_value(&rep).context("serialising the report")?;
     if let Some(path) = &opts.report {
         let text = serde_json::to_string_pretty(&json).context("serialising the report")?;
         files::replace_file(path, (text + "\n").as_bytes())

@@ -1,7 +1,7 @@
 //! What the launcher reports: the status line printed every second, each
 //! stage's end ([`stage_end`]: counters over every incarnation, how it
 //! ended), the supervision figures merged into the run report
-//! ([`supervision_json`], [`merge_supervision`]), the supervision summary
+//! ([`supervision`], [`merge_supervision`]), the supervision summary
 //! line and the stages that did not stop cleanly ([`unclean_stages`]).
 //! The run report itself is [`crate::pipeline::report`].
 
@@ -10,10 +10,14 @@ use super::{RunOptions, SensorSource};
 use crate::config::ControlBackend;
 use crate::ipc::{Hop, StageKind, StageStats};
 use crate::pipeline::monitor::Monitor;
-use crate::pipeline::report::{ReportInput, StageEnd};
+use crate::pipeline::report::{
+    RecoveryReport, RecoverySummary, ReportInput, RunReport, StageEnd, StageSupervision,
+    SupervisorReport,
+};
 use crate::pipeline::supervisor_timeline::Timeline;
 use crate::pipeline::PipelineConfig;
-use serde_json::{json, Value};
+use serde_json::Value;
+use std::collections::BTreeMap;
 use std::time::Duration;
 
 /// Exit status prefix of a stage that died as the run ended, before its
@@ -85,105 +89,95 @@ pub(super) fn report_input(
     }
 }
 
-/// Count, lower median (nearest rank) and maximum of `v`.
-fn summary(v: &mut [f64]) -> Value {
-    v.sort_by(f64::total_cmp);
-    json!({
-        "count": v.len(),
-        "p50": v.get(v.len().saturating_sub(1) / 2),
-        "max": v.last(),
-    })
+/// The supervision figures of a run: per stage (by name) and the
+/// supervisor's section, and the timeline summary.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(super) struct SupervisionFigures {
+    pub stages: BTreeMap<String, StageSupervision>,
+    pub supervisor: SupervisorReport,
+    pub timeline: Value,
 }
 
 /// The report's supervision figures: `stages.<name>.{restarts,
 /// heartbeat_misses, chaos_kills, deaths}` and the `supervisor` section.
-pub(super) fn supervision_json(stages: &[Stage], sup: &Supervision) -> Value {
-    let mut per_stage = serde_json::Map::new();
-    for s in stages {
-        per_stage.insert(
-            s.kind.name().into(),
-            json!({
-                "restarts": s.restart.restarts,
-                "heartbeat_misses": s.heartbeat_misses,
-                "chaos_kills": s.chaos_kills,
-                "deaths": s.deaths,
-            }),
-        );
-    }
-    let mut all: Vec<f64> = sup.recoveries.iter().filter_map(Recovery::ms).collect();
-    let mut by_stage = serde_json::Map::new();
-    for k in StageKind::ALL {
-        let mut v: Vec<f64> = sup
-            .recoveries
+pub(super) fn supervision(stages: &[Stage], sup: &Supervision) -> SupervisionFigures {
+    let per_stage = stages
+        .iter()
+        .map(|s| {
+            let v = StageSupervision {
+                restarts: s.restart.restarts,
+                heartbeat_misses: s.heartbeat_misses,
+                chaos_kills: Some(s.chaos_kills),
+                deaths: Some(s.deaths.clone()),
+            };
+            (s.kind.name().to_string(), v)
+        })
+        .collect();
+    let times = |k: Option<StageKind>| -> Vec<f64> {
+        sup.recoveries
             .iter()
-            .filter(|r| r.kind == k)
+            .filter(|r| k.is_none_or(|k| r.kind == k))
             .filter_map(Recovery::ms)
-            .collect();
-        if !v.is_empty() {
-            by_stage.insert(k.name().into(), summary(&mut v));
-        }
-    }
-    json!({
-        "stages": per_stage,
-        "supervisor": {
-            "restarts": stages.iter().map(|s| s.restart.restarts as u64).sum::<u64>(),
-            "heartbeat_misses": stages.iter().map(|s| s.heartbeat_misses).sum::<u64>(),
-            "chaos_kills": sup.chaos_kills,
-            "dead_nodes_removed": sup.dead_nodes_removed,
-            "recoveries_pending": sup.recoveries.iter().filter(|r| r.ms().is_none()).count(),
-            "recovery_ms": summary(&mut all),
-            "recovery_ms_by_stage": by_stage,
-            "recoveries": sup.recoveries.iter().map(|r| json!({
-                "stage": r.kind.name(),
-                "cause": r.cause,
-                "backoff_ms": r.backoff_ms,
-                "new_pid": r.pid,
-                "recovery_ms": r.ms(),
-            })).collect::<Vec<_>>(),
+            .collect()
+    };
+    let by_stage = StageKind::ALL
+        .iter()
+        .map(|&k| (k.name().to_string(), times(Some(k))))
+        .filter(|(_, v)| !v.is_empty())
+        .map(|(k, v)| (k, RecoverySummary::of(v)))
+        .collect();
+    let recoveries = sup
+        .recoveries
+        .iter()
+        .map(|r| RecoveryReport {
+            stage: r.kind.name().to_string(),
+            cause: r.cause.clone(),
+            backoff_ms: r.backoff_ms,
+            new_pid: r.pid,
+            recovery_ms: r.ms(),
+        })
+        .collect();
+    SupervisionFigures {
+        stages: per_stage,
+        supervisor: SupervisorReport {
+            restarts: stages.iter().map(|s| s.restart.restarts as u64).sum(),
+            heartbeat_misses: stages.iter().map(|s| s.heartbeat_misses).sum(),
+            chaos_kills: sup.chaos_kills,
+            dead_nodes_removed: sup.dead_nodes_removed,
+            recoveries_pending: sup.recoveries.iter().filter(|r| r.ms().is_none()).count(),
+            recovery_ms: RecoverySummary::of(times(None)),
+            recovery_ms_by_stage: by_stage,
+            recoveries,
         },
-        "timeline": sup.timeline.summary(),
-    })
+        timeline: sup.timeline.summary(),
+    }
 }
 
-/// Add the supervision figures to the report JSON.
-pub(super) fn merge_supervision(json: &mut Value, extra: Value) {
-    if let Some(per) = extra["stages"].as_object() {
-        for (name, v) in per {
-            if let (Some(dst), Some(src)) = (json["stages"][name].as_object_mut(), v.as_object()) {
-                for (k, x) in src {
-                    dst.insert(k.clone(), x.clone());
-                }
-            }
-        }
+/// Add the supervision figures to the report. Stages the launcher did not
+/// start (an external plant) get no restarts and no heartbeat misses.
+pub(super) fn merge_supervision(report: &mut RunReport, extra: SupervisionFigures) {
+    for (name, st) in report.stages.iter_mut() {
+        st.supervision = Some(extra.stages.get(name).cloned().unwrap_or_default());
     }
-    // Stages the launcher did not start (an external plant): no restarts.
-    if let Some(st) = json["stages"].as_object_mut() {
-        for v in st.values_mut() {
-            if let Some(o) = v.as_object_mut() {
-                o.entry("restarts").or_insert(json!(0));
-                o.entry("heartbeat_misses").or_insert(json!(0));
-            }
-        }
-    }
-    json["supervisor"] = extra["supervisor"].clone();
-    json["timeline"] = extra["timeline"].clone();
+    report.supervisor = Some(extra.supervisor);
+    report.timeline = Some(extra.timeline);
 }
 
 /// One line of supervision figures when anything happened.
-pub(super) fn supervision_line(json: &Value) -> Option<String> {
-    let s = &json["supervisor"];
-    let restarts = s["restarts"].as_u64().unwrap_or(0);
-    if restarts == 0 && s["heartbeat_misses"].as_u64().unwrap_or(0) == 0 {
+pub(super) fn supervision_line(report: &RunReport) -> Option<String> {
+    let s = report.supervisor.as_ref()?;
+    if s.restarts == 0 && s.heartbeat_misses == 0 {
         return None;
     }
-    let f = |v: &Value| v.as_f64().map(|x| format!("{x:.1}")).unwrap_or("-".into());
+    let f = |v: Option<f64>| v.map(|x| format!("{x:.1}")).unwrap_or("-".into());
     Some(format!(
-        "supervisor: {restarts} restarts, {} heartbeat misses, {} chaos kills; recovery p50 {} ms, max {} ms over {}",
-        s["heartbeat_misses"],
-        s["chaos_kills"],
-        f(&s["recovery_ms"]["p50"]),
-        f(&s["recovery_ms"]["max"]),
-        s["recovery_ms"]["count"]
+        "supervisor: {} restarts, {} heartbeat misses, {} chaos kills; recovery p50 {} ms, max {} ms over {}",
+        s.restarts,
+        s.heartbeat_misses,
+        s.chaos_kills,
+        f(s.recovery_ms.p50),
+        f(s.recovery_ms.max),
+        s.recovery_ms.count
     ))
 }
 

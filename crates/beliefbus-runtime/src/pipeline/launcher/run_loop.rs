@@ -4,7 +4,7 @@
 //! [`super::supervise`]; this file only feeds it the processes, the
 //! monitor and the clock.
 
-use super::report::{self, Supervision};
+use super::report::{self, Supervision, SupervisionFigures};
 use super::spawn::{resume_path, signal, spawn, spawn_child};
 use super::supervise::{
     chaos_candidates, describe, give_up_text, heartbeat_overdue, starvers, Recovery, Stage,
@@ -22,7 +22,6 @@ use crate::pipeline::PipelineConfig;
 use crate::rt::clock::now_ns;
 use crate::rt::files::PrivateDir;
 use anyhow::{bail, Context, Result};
-use serde_json::Value;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -55,7 +54,12 @@ struct Ctx<'a> {
 
 /// What [`supervise`] hands back: the report's input, the notes, the
 /// failure that ended the loop (if any) and the supervision figures.
-pub(super) type Supervised = (ReportInput, Vec<String>, Option<anyhow::Error>, Value);
+pub(super) type Supervised = (
+    ReportInput,
+    Vec<String>,
+    Option<anyhow::Error>,
+    SupervisionFigures,
+);
 
 /// Open the bus and monitor on `prefix`, run the stages until the end,
 /// stop them and collect what the report needs.
@@ -109,7 +113,7 @@ pub(super) fn supervise(
     let _ = mon.poll();
     drop(state);
     let input = report::report_input(cfg, opts, prefix, &stages, &mon);
-    let extra = report::supervision_json(&stages, &sup);
+    let extra = report::supervision(&stages, &sup);
     drop(mon);
     drop(bus);
     Ok((input, notes, outcome.err(), extra))

@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::pipeline::monitor::Accuracy;
+use serde_json::json;
 use std::os::unix::process::ExitStatusExt;
 use std::process::ExitStatus;
 use std::time::Instant;
@@ -64,7 +65,7 @@ fn stage_end_of_a_stage_the_launcher_did_not_start_takes_the_reported_pid() {
 }
 
 #[test]
-fn supervision_json_counts_restarts_and_summarises_recovery_times() {
+fn supervision_counts_restarts_and_summarises_recovery_times() {
     let mut f = stage(StageKind::Filter, 1);
     f.restart.restarts = 3;
     f.heartbeat_misses = 1;
@@ -86,11 +87,13 @@ fn supervision_json_counts_restarts_and_summarises_recovery_times() {
         chaos_kills: 2,
         timeline: Timeline::default(),
     };
-    let v = supervision_json(&[f, c], &sup);
-    assert_eq!(v["stages"]["filter"]["restarts"], json!(3));
-    assert_eq!(v["stages"]["filter"]["deaths"], json!(["chaos", "hang"]));
-    assert_eq!(v["stages"]["control"]["heartbeat_misses"], json!(0));
-    let s = &v["supervisor"];
+    // Through JSON: the keys the report has always had.
+    let x = supervision(&[f, c], &sup);
+    let per = serde_json::to_value(&x.stages).unwrap();
+    assert_eq!(per["filter"]["restarts"], json!(3));
+    assert_eq!(per["filter"]["deaths"], json!(["chaos", "hang"]));
+    assert_eq!(per["control"]["heartbeat_misses"], json!(0));
+    let s = serde_json::to_value(&x.supervisor).unwrap();
     assert_eq!(s["restarts"], json!(4));
     assert_eq!(s["heartbeat_misses"], json!(1));
     assert_eq!(s["chaos_kills"], json!(2));
@@ -107,34 +110,44 @@ fn supervision_json_counts_restarts_and_summarises_recovery_times() {
     );
     assert!(s["recovery_ms_by_stage"].get("ingest").is_none());
     assert_eq!(s["recoveries"].as_array().unwrap().len(), 5);
+    assert_eq!(s["recoveries"][0]["recovery_ms"], json!(30.0));
     assert!(s["recoveries"][4]["recovery_ms"].is_null());
-    assert!(v["timeline"].is_null());
+    assert!(x.timeline.is_null());
     // Empty: count 0 and null figures.
-    let none = supervision_json(&[], &Supervision::default());
+    let none = supervision(&[], &Supervision::default());
     assert_eq!(
-        none["supervisor"]["recovery_ms"],
+        serde_json::to_value(&none.supervisor.recovery_ms).unwrap(),
         json!({"count": 0, "p50": null, "max": null})
     );
 }
 
 #[test]
 fn merge_adds_supervision_per_stage_and_zero_defaults_for_the_others() {
-    let mut report = json!({"stages": {"filter": {"processed": 5}, "plant": {"processed": 9}}});
+    let mut report = input_with(&[(StageKind::Filter, None), (StageKind::Plant, None)]).report();
     let mut f = stage(StageKind::Filter, 1);
     f.restart.restarts = 2;
-    let extra = supervision_json(&[f], &Supervision::default());
-    merge_supervision(&mut report, extra);
-    assert_eq!(report["stages"]["filter"]["processed"], json!(5));
-    assert_eq!(report["stages"]["filter"]["restarts"], json!(2));
-    assert_eq!(report["stages"]["plant"]["restarts"], json!(0));
-    assert_eq!(report["stages"]["plant"]["heartbeat_misses"], json!(0));
-    assert_eq!(report["supervisor"]["restarts"], json!(2));
-    assert!(report.get("timeline").is_some());
+    merge_supervision(&mut report, supervision(&[f], &Supervision::default()));
+    let v = serde_json::to_value(&report).unwrap();
+    assert_eq!(v["stages"]["filter"]["restarts"], json!(2));
+    assert_eq!(v["stages"]["filter"]["chaos_kills"], json!(0));
+    assert_eq!(v["stages"]["plant"]["restarts"], json!(0));
+    assert_eq!(v["stages"]["plant"]["heartbeat_misses"], json!(0));
+    // Not the launcher's: no chaos kills or deaths to report.
+    assert!(v["stages"]["plant"].get("deaths").is_none());
+    assert_eq!(v["supervisor"]["restarts"], json!(2));
+    assert!(v.get("timeline").is_some_and(Value::is_null));
+    // Without the launcher's figures neither section is written.
+    let plain = serde_json::to_value(input_with(&[]).report()).unwrap();
+    assert!(plain.get("supervisor").is_none() && plain.get("timeline").is_none());
 }
 
 #[test]
 fn supervision_line_only_when_something_happened() {
-    let quiet = supervision_json(&[stage(StageKind::Filter, 1)], &Supervision::default());
+    let mut quiet = input_with(&[]).report();
+    merge_supervision(
+        &mut quiet,
+        supervision(&[stage(StageKind::Filter, 1)], &Supervision::default()),
+    );
     assert_eq!(supervision_line(&quiet), None);
     let mut f = stage(StageKind::Filter, 1);
     f.restart.restarts = 1;
@@ -142,8 +155,10 @@ fn supervision_line_only_when_something_happened() {
         recoveries: vec![recovery(StageKind::Filter, 0, Some(12))],
         ..Supervision::default()
     };
+    let mut busy = input_with(&[]).report();
+    merge_supervision(&mut busy, supervision(&[f], &sup));
     assert_eq!(
-        supervision_line(&supervision_json(&[f], &sup)).as_deref(),
+        supervision_line(&busy).as_deref(),
         Some(
             "supervisor: 1 restarts, 0 heartbeat misses, 0 chaos kills; \
              recovery p50 12.0 ms, max 12.0 ms over 1"
