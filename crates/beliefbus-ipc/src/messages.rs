@@ -65,18 +65,23 @@ pub struct Trace {
 }
 
 /// The latency hops a trace yields (the report's `hops` keys).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, strum::IntoStaticStr)]
 #[repr(u32)]
 pub enum Hop {
     /// Sample publish → ingest receives it.
+    #[strum(serialize = "sensor->ingest")]
     SensorToIngest = 1,
     /// Ingest publishes the observation → filter receives it.
+    #[strum(serialize = "ingest->filter")]
     IngestToFilter = 2,
     /// Filter publishes the belief → control receives it.
+    #[strum(serialize = "filter->control")]
     FilterToControl = 3,
     /// Sample publish → belief published.
+    #[strum(serialize = "sensor->belief")]
     SensorToBelief = 4,
     /// Sample publish → control published.
+    #[strum(serialize = "sensor->control")]
     SensorToControl = 5,
 }
 
@@ -92,13 +97,7 @@ impl Hop {
 
     /// The report key (`"sensor->control"`, ...).
     pub fn key(self) -> &'static str {
-        match self {
-            Hop::SensorToIngest => "sensor->ingest",
-            Hop::IngestToFilter => "ingest->filter",
-            Hop::FilterToControl => "filter->control",
-            Hop::SensorToBelief => "sensor->belief",
-            Hop::SensorToControl => "sensor->control",
-        }
+        self.into()
     }
 
     /// Decode a wire id.
@@ -459,7 +458,20 @@ pub const STATS_REASONS: usize = 12;
 pub const STATS_DROP_REASONS: usize = 4;
 
 /// The stages of a pipeline (`stage` field of [`StageStats`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    PartialEq,
+    Eq,
+    Hash,
+    PartialOrd,
+    Ord,
+    strum::IntoStaticStr,
+    strum::EnumString,
+    strum::VariantNames,
+)]
+#[strum(serialize_all = "lowercase")]
 #[repr(u32)]
 pub enum StageKind {
     Ingest = 1,
@@ -482,13 +494,7 @@ impl StageKind {
     /// Lower-case name (`ingest`, ...), the report key and the executable
     /// suffix (`beliefbus-<name>`).
     pub fn name(self) -> &'static str {
-        match self {
-            StageKind::Ingest => "ingest",
-            StageKind::Filter => "filter",
-            StageKind::Control => "control",
-            StageKind::Refine => "refine",
-            StageKind::Plant => "plant",
-        }
+        self.into()
     }
 
     /// Decode a wire id.
@@ -498,7 +504,7 @@ impl StageKind {
 
     /// Parse a name.
     pub fn from_name(name: &str) -> Option<StageKind> {
-        StageKind::ALL.into_iter().find(|s| s.name() == name)
+        name.parse().ok()
     }
 }
 

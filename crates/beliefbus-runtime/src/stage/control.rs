@@ -39,7 +39,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 /// Why a control computation failed (index into `rejected_by_reason`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::IntoStaticStr, strum::VariantNames)]
+#[strum(serialize_all = "snake_case")]
 #[repr(usize)]
 pub enum Reason {
     Dimension = 0,
@@ -59,12 +60,7 @@ impl Reason {
 
     /// Report name.
     pub fn name(self) -> &'static str {
-        match self {
-            Reason::Dimension => "dimension",
-            Reason::NonFinite => "non_finite",
-            Reason::Model => "model",
-            Reason::Numerical => "numerical",
-        }
+        self.into()
     }
 
     fn of(e: &ControlError) -> Reason {

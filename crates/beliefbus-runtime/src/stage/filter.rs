@@ -50,7 +50,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 /// Why the filter refused a step (index into `rejected_by_reason`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::IntoStaticStr, strum::VariantNames)]
+#[strum(serialize_all = "snake_case")]
 #[repr(usize)]
 pub enum Reason {
     TimeBackwards = 0,
@@ -63,10 +64,12 @@ pub enum Reason {
     Snapshot = 5,
     /// A measurement time far off the stage's clock (a rogue publisher on
     /// the internal channel; see [`time_out_of_range`]).
+    #[strum(serialize = "time_out_of_range")]
     TimeRange = 6,
     /// Published by a process that is not the run's ingest
     /// ([`crate::ipc::PublisherGate`]). Not part of the observation books:
     /// ingest never published it.
+    #[strum(serialize = "foreign_publisher")]
     Foreign = 7,
 }
 
@@ -85,16 +88,7 @@ impl Reason {
 
     /// Report name.
     pub fn name(self) -> &'static str {
-        match self {
-            Reason::TimeBackwards => "time_backwards",
-            Reason::Dimension => "dimension",
-            Reason::NonFinite => "non_finite",
-            Reason::Degenerate => "degenerate",
-            Reason::Numerical => "numerical",
-            Reason::Snapshot => "snapshot",
-            Reason::TimeRange => "time_out_of_range",
-            Reason::Foreign => "foreign_publisher",
-        }
+        self.into()
     }
 
     fn of(e: &FilterError) -> Reason {

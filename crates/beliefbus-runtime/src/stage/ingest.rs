@@ -38,7 +38,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 /// Why ingest rejected a sample (index into `rejected_by_reason`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::IntoStaticStr, strum::VariantNames)]
+#[strum(serialize_all = "snake_case")]
 #[repr(usize)]
 pub enum Reason {
     Dimension = 0,
@@ -74,18 +75,7 @@ impl Reason {
 
     /// Report name (`stages.ingest.rejected_by_reason.<name>`).
     pub fn name(self) -> &'static str {
-        match self {
-            Reason::Dimension => "dimension",
-            Reason::NonFinite => "non_finite",
-            Reason::TimeBackwards => "time_backwards",
-            Reason::TooOld => "too_old",
-            Reason::Duplicate => "duplicate",
-            Reason::UnknownChannel => "unknown_channel",
-            Reason::Rate => "rate",
-            Reason::Invalid => "invalid",
-            Reason::ForeignPublisher => "foreign_publisher",
-            Reason::SeqJump => "seq_jump",
-        }
+        self.into()
     }
 }
 

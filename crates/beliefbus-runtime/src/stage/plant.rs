@@ -29,17 +29,22 @@ use std::sync::atomic::AtomicBool;
 pub use crate::scenario::PLANT_STREAM;
 
 /// Why the plant refused a control (index into `rejected_by_reason`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::IntoStaticStr, strum::VariantNames)]
+#[strum(serialize_all = "snake_case")]
 #[repr(usize)]
 pub enum Reason {
     /// `dim` is not the model's control dimension.
+    #[strum(serialize = "control_dimension")]
     Dimension = 0,
     /// NaN or infinite components.
+    #[strum(serialize = "control_non_finite")]
     NonFinite = 1,
     /// Outside the controller's limits.
+    #[strum(serialize = "control_limit")]
     Limit = 2,
     /// Published by a process that is not the run's controller
     /// ([`crate::ipc::PublisherGate`]).
+    #[strum(serialize = "foreign_publisher")]
     Foreign = 3,
 }
 
@@ -54,12 +59,7 @@ impl Reason {
 
     /// Report name (`stages.plant.rejected_by_reason.<name>`).
     pub fn name(self) -> &'static str {
-        match self {
-            Reason::Dimension => "control_dimension",
-            Reason::NonFinite => "control_non_finite",
-            Reason::Limit => "control_limit",
-            Reason::Foreign => "foreign_publisher",
-        }
+        self.into()
     }
 
     fn of(r: ControlReject) -> Self {

@@ -214,3 +214,57 @@ fn a_written_report_parses_back_with_its_schema_version_and_every_field() {
     assert_eq!(parsed, expected);
     assert_eq!(serde_json::to_value(&parsed).unwrap(), v);
 }
+
+#[test]
+fn every_reason_list_names_every_variant_in_counter_order() {
+    use crate::stage::{chain_guard, control, filter, ingest, plant, DropReason};
+    use strum::VariantNames;
+    fn names<T: Copy + Into<&'static str>>(all: &[T]) -> Vec<&'static str> {
+        all.iter().map(|&r| r.into()).collect()
+    }
+    // VARIANTS is in declaration order, which is the counter index order
+    // (the discriminants): an ALL list missing a variant fails here.
+    assert_eq!(names(&ingest::Reason::ALL), ingest::Reason::VARIANTS);
+    assert_eq!(names(&filter::Reason::ALL), filter::Reason::VARIANTS);
+    assert_eq!(names(&control::Reason::ALL), control::Reason::VARIANTS);
+    assert_eq!(names(&plant::Reason::ALL), plant::Reason::VARIANTS);
+    assert_eq!(
+        names(&chain_guard::Cause::ALL),
+        chain_guard::Cause::VARIANTS
+    );
+    assert_eq!(names(&DropReason::ALL), DropReason::VARIANTS);
+    for (i, r) in ingest::Reason::ALL.iter().enumerate() {
+        assert_eq!(*r as usize, i);
+    }
+    for (i, r) in filter::Reason::ALL.iter().enumerate() {
+        assert_eq!(*r as usize, i);
+    }
+    // The plant refuses what every actuator refuses, under the same names.
+    use crate::ipc::ControlReject;
+    assert_eq!(
+        names(&[
+            ControlReject::Dimension,
+            ControlReject::NonFinite,
+            ControlReject::Limit
+        ]),
+        &plant::Reason::VARIANTS[..3]
+    );
+    // Report keys: the documented names.
+    assert_eq!(
+        filter::Reason::VARIANTS,
+        [
+            "time_backwards",
+            "dimension",
+            "non_finite",
+            "degenerate",
+            "numerical",
+            "snapshot",
+            "time_out_of_range",
+            "foreign_publisher"
+        ]
+    );
+    assert_eq!(
+        DropReason::VARIANTS,
+        ["lost", "stale", "superseded", "shutdown"]
+    );
+}
