@@ -187,6 +187,8 @@ impl Validator {
         now_ns: u64,
         obs: &mut Observation,
     ) -> Result<u64, Reason> {
+        // Long on purpose: the ABI's publisher rules checked in order
+        // (docs/sensor-abi.md), each returning its rejection reason.
         let Some(ch) = self.channels.iter_mut().find(|c| c.cfg.id == s.channel) else {
             return Err(Reason::UnknownChannel);
         };
@@ -349,6 +351,10 @@ pub fn run(
     clock: &dyn Clock,
     stop: &AtomicBool,
 ) -> Result<StageStats, StageError> {
+    // Long on purpose: the stage's loop — set-up, then the per-message
+    // body handed to `run_loop` — reads top to bottom in the order a
+    // message takes on the latency path, and its preallocated state lives in
+    // this function's locals, borrowed by the loop body.
     let rt = cfg.stages.get(StageKind::Ingest);
     let mut m = Metrics::new(
         rt.budget_ns(),

@@ -137,6 +137,10 @@ pub fn run_resumed(
     max_samples: Option<u64>,
     resume: &Resume,
 ) -> Result<StageStats, StageError> {
+    // Long on purpose: the plant's periodic loop — set-up, then one
+    // simulated step and sample per period — reads top to bottom in the
+    // order of a period, and its preallocated state lives in this
+    // function's locals.
     let rt = cfg.stages.get(StageKind::Plant);
     let warmup_ns = (cfg.run.warmup_s * 1e9) as u64;
     let mut m = Metrics::new(rt.budget_ns(), &[], warmup_ns);
