@@ -55,7 +55,7 @@ fn input() -> ReportInput {
 }
 
 #[test]
-fn json_has_every_key_of_issue_2() {
+fn json_has_every_documented_key() {
     let v = input().to_json();
     for k in [
         "scenario",
