@@ -1,5 +1,6 @@
 //! The experiment report of DESIGN.md, shared by every experiment of the
-//! workspace (the root binary's and the paper crates'): `{"experiment",
+//! workspace (the root binary's and the paper crates'): `{"schema_version",
+//! "experiment",
 //! "params", "results": [{"method", <setting>, <metric>, ...}], "paper":
 //! [...]}`, and its text rendering with the paper's rows beside ours.
 //! Pure data and formatting: no I/O.
@@ -47,9 +48,15 @@ impl Row {
     }
 }
 
+/// Version of the experiment JSON's layout (`schema_version`): bumped on any
+/// incompatible change (a key removed, renamed or changing meaning).
+pub const EXPERIMENT_SCHEMA_VERSION: u32 = 1;
+
 /// Result of one experiment.
 #[derive(Clone, Debug, Serialize)]
 pub struct ExperimentReport {
+    /// [`EXPERIMENT_SCHEMA_VERSION`].
+    pub schema_version: u32,
     pub experiment: String,
     pub params: Map<String, Value>,
     pub results: Vec<Row>,
@@ -67,6 +74,7 @@ impl ExperimentReport {
     /// An empty report for `name`.
     pub fn new(name: &str) -> Self {
         Self {
+            schema_version: EXPERIMENT_SCHEMA_VERSION,
             experiment: name.to_string(),
             params: Map::new(),
             results: vec![],
@@ -185,6 +193,29 @@ mod tests {
         assert_eq!(v["results"][0]["n_states"], 100);
         assert_eq!(v["paper"][0]["mean_error"], 1.36e-2);
         assert!(r.render().contains("chain"));
+    }
+
+    #[test]
+    fn written_json_parses_back_with_its_schema_version() {
+        let mut r = ExperimentReport::new("ship");
+        r.param("runs", 3);
+        r.results
+            .push(Row::new("pf").num("rmse", 0.5).text("note", "ok"));
+        r.notes.push("printed only".into());
+        let text = serde_json::to_string_pretty(&r).unwrap();
+        let v: Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["schema_version"], EXPERIMENT_SCHEMA_VERSION);
+        assert!(v["schema_version"].is_u64());
+        let mut keys: Vec<&str> = v.as_object().unwrap().keys().map(|k| k.as_str()).collect();
+        keys.sort_unstable();
+        assert_eq!(
+            keys,
+            ["experiment", "paper", "params", "results", "schema_version"]
+        );
+        assert_eq!(v["params"]["runs"], 3);
+        assert_eq!(v["results"][0]["rmse"], 0.5);
+        assert_eq!(v["results"][0]["note"], "ok");
+        assert_eq!(v["paper"], serde_json::json!([]));
     }
 
     #[test]

@@ -7,8 +7,9 @@
 use super::messages::Control;
 use crate::MAX_CONTROL;
 
-/// Why a control was refused.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Why a control was refused (report names `control_<snake_case>`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::IntoStaticStr, strum::VariantNames)]
+#[strum(prefix = "control_", serialize_all = "snake_case")]
 pub enum ControlReject {
     /// `dim` is not the run's control dimension.
     Dimension,
@@ -21,11 +22,7 @@ pub enum ControlReject {
 impl ControlReject {
     /// Report name.
     pub fn name(self) -> &'static str {
-        match self {
-            ControlReject::Dimension => "control_dimension",
-            ControlReject::NonFinite => "control_non_finite",
-            ControlReject::Limit => "control_limit",
-        }
+        self.into()
     }
 }
 

@@ -233,3 +233,40 @@ fn the_stop_flag_ends_an_idle_loop() {
     setter.join().unwrap();
     assert_eq!(data_wakes, 0);
 }
+
+#[test]
+fn stage_and_hop_names_are_the_report_keys_and_parse_back() {
+    use strum::VariantNames;
+    let names: Vec<&str> = StageKind::ALL.iter().map(|s| s.name()).collect();
+    assert_eq!(names, StageKind::VARIANTS);
+    assert_eq!(names, ["ingest", "filter", "control", "refine", "plant"]);
+    for s in StageKind::ALL {
+        assert_eq!(StageKind::from_name(s.name()), Some(s));
+    }
+    assert_eq!(StageKind::from_name("Filter"), None);
+    assert_eq!(StageKind::from_name("sensor"), None);
+    let keys: Vec<&str> = Hop::ALL.iter().map(|h| h.key()).collect();
+    assert_eq!(
+        keys,
+        [
+            "sensor->ingest",
+            "ingest->filter",
+            "filter->control",
+            "sensor->belief",
+            "sensor->control"
+        ]
+    );
+    let rejects: Vec<&str> = [
+        ControlReject::Dimension,
+        ControlReject::NonFinite,
+        ControlReject::Limit,
+    ]
+    .iter()
+    .map(|r| r.name())
+    .collect();
+    assert_eq!(rejects, ControlReject::VARIANTS);
+    assert_eq!(
+        rejects,
+        ["control_dimension", "control_non_finite", "control_limit"]
+    );
+}

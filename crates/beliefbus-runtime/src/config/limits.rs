@@ -132,6 +132,8 @@ impl PipelineConfig {
     /// Check every hard limit (called by `validate` after the plain range
     /// checks, so every value here is finite and positive where it must be).
     pub(super) fn validate_limits(&self) -> Result<(), ConfigError> {
+        // Long on purpose: one flat check per hard limit, each with its key
+        // and the reason for the limit in its message.
         let dims = self.model()?.dims();
         let (d, c) = (dims.state as f64, dims.control as f64);
         let sample_dt = self.sample_dt();

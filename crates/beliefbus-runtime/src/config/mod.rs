@@ -231,6 +231,8 @@ impl Default for IngestConfig {
 /// Filter backends.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
+#[derive(strum::Display, strum::IntoStaticStr, strum::EnumString, strum::VariantNames)]
+#[strum(serialize_all = "lowercase")]
 pub enum FilterBackend {
     Pf,
     Ekf,
@@ -240,13 +242,9 @@ pub enum FilterBackend {
 }
 
 impl FilterBackend {
+    /// Config and report name (`[filter] backend = "pf"`, ...).
     pub fn name(self) -> &'static str {
-        match self {
-            FilterBackend::Pf => "pf",
-            FilterBackend::Ekf => "ekf",
-            FilterBackend::Ukf => "ukf",
-            FilterBackend::Chain => "chain",
-        }
+        self.into()
     }
 }
 
@@ -318,6 +316,8 @@ impl Default for ChainFilterConfig {
 /// Controller backends.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
+#[derive(strum::Display, strum::IntoStaticStr, strum::EnumString, strum::VariantNames)]
+#[strum(serialize_all = "lowercase")]
 pub enum ControlBackend {
     /// Model-predictive path-integral control.
     Mppi,
@@ -328,12 +328,9 @@ pub enum ControlBackend {
 }
 
 impl ControlBackend {
+    /// Config and report name (`[control] backend = "mppi"`, ...).
     pub fn name(self) -> &'static str {
-        match self {
-            ControlBackend::Mppi => "mppi",
-            ControlBackend::Implicit => "implicit",
-            ControlBackend::None => "none",
-        }
+        self.into()
     }
 }
 

@@ -233,3 +233,31 @@ fn an_integration_step_too_coarse_for_the_model_is_refused_at_validation() {
     assert_eq!(e.key, "filter.ukf.max_dt", "{e}");
     assert!(load_str(text, &["filter.pf.max_dt=0.005".into()]).is_ok());
 }
+
+#[test]
+fn backend_names_are_the_serde_names_and_parse_back() {
+    use strum::VariantNames;
+    let serde_name = |v: serde_json::Value| v.as_str().unwrap().to_string();
+    for b in [
+        FilterBackend::Pf,
+        FilterBackend::Ekf,
+        FilterBackend::Ukf,
+        FilterBackend::Chain,
+    ] {
+        assert_eq!(serde_name(serde_json::to_value(b).unwrap()), b.name());
+        assert_eq!(b.to_string(), b.name());
+        assert_eq!(b.name().parse::<FilterBackend>().unwrap(), b);
+    }
+    for b in [
+        ControlBackend::Mppi,
+        ControlBackend::Implicit,
+        ControlBackend::None,
+    ] {
+        assert_eq!(serde_name(serde_json::to_value(b).unwrap()), b.name());
+        assert_eq!(b.name().parse::<ControlBackend>().unwrap(), b);
+    }
+    // The names users write in configs and read in reports.
+    assert_eq!(FilterBackend::VARIANTS, ["pf", "ekf", "ukf", "chain"]);
+    assert_eq!(ControlBackend::VARIANTS, ["mppi", "implicit", "none"]);
+    assert!("PF".parse::<FilterBackend>().is_err());
+}

@@ -193,6 +193,9 @@ impl PipelineConfig {
 
     /// Check everything; the first problem found is returned.
     pub fn validate(&self) -> Result<(), ConfigError> {
+        // Long on purpose: a flat list of independent checks in the order of
+        // the config's sections, each naming its key; split, the list would
+        // only be scattered.
         let r = &self.run;
         crate::ipc::validate_instance(&r.instance)
             .map_err(|e| ConfigError::new("run.instance", e.to_string()))?;
@@ -376,6 +379,7 @@ impl PipelineConfig {
     }
 
     fn validate_control(&self, model: &DynModel) -> Result<(), ConfigError> {
+        // Long on purpose: one flat check per `[control]` key, in key order.
         let c = &self.control;
         if !(c.max_belief_age_us.is_finite() && c.max_belief_age_us >= 0.0) {
             return Err(ConfigError::new(

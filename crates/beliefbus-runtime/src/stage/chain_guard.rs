@@ -93,7 +93,8 @@ pub enum Source {
 }
 
 /// What opened a stale episode (index into [`GuardCounts::by_cause`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::IntoStaticStr, strum::VariantNames)]
+#[strum(serialize_all = "snake_case")]
 #[repr(usize)]
 pub enum Cause {
     Degenerate = 0,
@@ -105,11 +106,7 @@ impl Cause {
     pub const ALL: [Cause; 3] = [Cause::Degenerate, Cause::Age, Cause::Evidence];
     /// Report name.
     pub fn name(self) -> &'static str {
-        match self {
-            Cause::Degenerate => "degenerate",
-            Cause::Age => "age",
-            Cause::Evidence => "evidence",
-        }
+        self.into()
     }
 }
 

@@ -39,7 +39,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 /// Why a control computation failed (index into `rejected_by_reason`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::IntoStaticStr, strum::VariantNames)]
+#[strum(serialize_all = "snake_case")]
 #[repr(usize)]
 pub enum Reason {
     Dimension = 0,
@@ -59,12 +60,7 @@ impl Reason {
 
     /// Report name.
     pub fn name(self) -> &'static str {
-        match self {
-            Reason::Dimension => "dimension",
-            Reason::NonFinite => "non_finite",
-            Reason::Model => "model",
-            Reason::Numerical => "numerical",
-        }
+        self.into()
     }
 
     fn of(e: &ControlError) -> Reason {
@@ -199,6 +195,10 @@ pub fn run_with(
     stop: &AtomicBool,
     resume: Option<&ResumeControl>,
 ) -> Result<StageStats, StageError> {
+    // Long on purpose: the stage's loop — set-up, then the per-message
+    // body handed to `run_loop` — reads top to bottom in the order a
+    // message takes on the latency path, and its preallocated state lives in
+    // this function's locals, borrowed by the loop body.
     let rt = cfg.stages.get(StageKind::Control);
     let mut m = Metrics::new(
         rt.budget_ns(),

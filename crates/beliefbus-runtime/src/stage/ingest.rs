@@ -38,7 +38,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 /// Why ingest rejected a sample (index into `rejected_by_reason`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::IntoStaticStr, strum::VariantNames)]
+#[strum(serialize_all = "snake_case")]
 #[repr(usize)]
 pub enum Reason {
     Dimension = 0,
@@ -74,18 +75,7 @@ impl Reason {
 
     /// Report name (`stages.ingest.rejected_by_reason.<name>`).
     pub fn name(self) -> &'static str {
-        match self {
-            Reason::Dimension => "dimension",
-            Reason::NonFinite => "non_finite",
-            Reason::TimeBackwards => "time_backwards",
-            Reason::TooOld => "too_old",
-            Reason::Duplicate => "duplicate",
-            Reason::UnknownChannel => "unknown_channel",
-            Reason::Rate => "rate",
-            Reason::Invalid => "invalid",
-            Reason::ForeignPublisher => "foreign_publisher",
-            Reason::SeqJump => "seq_jump",
-        }
+        self.into()
     }
 }
 
@@ -197,6 +187,8 @@ impl Validator {
         now_ns: u64,
         obs: &mut Observation,
     ) -> Result<u64, Reason> {
+        // Long on purpose: the ABI's publisher rules checked in order
+        // (docs/sensor-abi.md), each returning its rejection reason.
         let Some(ch) = self.channels.iter_mut().find(|c| c.cfg.id == s.channel) else {
             return Err(Reason::UnknownChannel);
         };
@@ -359,6 +351,10 @@ pub fn run(
     clock: &dyn Clock,
     stop: &AtomicBool,
 ) -> Result<StageStats, StageError> {
+    // Long on purpose: the stage's loop — set-up, then the per-message
+    // body handed to `run_loop` — reads top to bottom in the order a
+    // message takes on the latency path, and its preallocated state lives in
+    // this function's locals, borrowed by the loop body.
     let rt = cfg.stages.get(StageKind::Ingest);
     let mut m = Metrics::new(
         rt.budget_ns(),

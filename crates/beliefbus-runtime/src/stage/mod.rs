@@ -100,7 +100,8 @@ impl StageIdentity {
 /// Why a stage dropped an input (index into `dropped_by_reason`; the
 /// accounting of an input stream is `published = processed + dropped +
 /// rejected + in flight`, each input in exactly one term).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::IntoStaticStr, strum::VariantNames)]
+#[strum(serialize_all = "snake_case")]
 #[repr(usize)]
 pub enum DropReason {
     /// Never reached the stage: a gap in the publisher's sequence numbers —
@@ -130,12 +131,7 @@ impl DropReason {
 
     /// Report name (`stages.<name>.dropped_by_reason.<reason>`).
     pub fn name(self) -> &'static str {
-        match self {
-            DropReason::Lost => "lost",
-            DropReason::Stale => "stale",
-            DropReason::Superseded => "superseded",
-            DropReason::Shutdown => "shutdown",
-        }
+        self.into()
     }
 }
 const _: () = assert!(DropReason::ALL.len() <= STATS_DROP_REASONS);

@@ -29,17 +29,22 @@ use std::sync::atomic::AtomicBool;
 pub use crate::scenario::PLANT_STREAM;
 
 /// Why the plant refused a control (index into `rejected_by_reason`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::IntoStaticStr, strum::VariantNames)]
+#[strum(serialize_all = "snake_case")]
 #[repr(usize)]
 pub enum Reason {
     /// `dim` is not the model's control dimension.
+    #[strum(serialize = "control_dimension")]
     Dimension = 0,
     /// NaN or infinite components.
+    #[strum(serialize = "control_non_finite")]
     NonFinite = 1,
     /// Outside the controller's limits.
+    #[strum(serialize = "control_limit")]
     Limit = 2,
     /// Published by a process that is not the run's controller
     /// ([`crate::ipc::PublisherGate`]).
+    #[strum(serialize = "foreign_publisher")]
     Foreign = 3,
 }
 
@@ -54,12 +59,7 @@ impl Reason {
 
     /// Report name (`stages.plant.rejected_by_reason.<name>`).
     pub fn name(self) -> &'static str {
-        match self {
-            Reason::Dimension => "control_dimension",
-            Reason::NonFinite => "control_non_finite",
-            Reason::Limit => "control_limit",
-            Reason::Foreign => "foreign_publisher",
-        }
+        self.into()
     }
 
     fn of(r: ControlReject) -> Self {
@@ -137,6 +137,10 @@ pub fn run_resumed(
     max_samples: Option<u64>,
     resume: &Resume,
 ) -> Result<StageStats, StageError> {
+    // Long on purpose: the plant's periodic loop — set-up, then one
+    // simulated step and sample per period — reads top to bottom in the
+    // order of a period, and its preallocated state lives in this
+    // function's locals.
     let rt = cfg.stages.get(StageKind::Plant);
     let warmup_ns = (cfg.run.warmup_s * 1e9) as u64;
     let mut m = Metrics::new(rt.budget_ns(), &[], warmup_ns);

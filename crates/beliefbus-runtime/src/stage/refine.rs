@@ -485,6 +485,10 @@ pub fn run_with(
     stop: &AtomicBool,
     restart: &Resume,
 ) -> Result<StageStats, StageError> {
+    // Long on purpose: the stage's loop — set-up, then the per-message
+    // body handed to `run_loop` — reads top to bottom in the order a
+    // message takes on the latency path, and its preallocated state lives in
+    // this function's locals, borrowed by the loop body.
     let rt = cfg.stages.get(StageKind::Refine);
     let mut m = Metrics::new(rt.budget_ns(), &[], (cfg.run.warmup_s * 1e9) as u64);
     let mut seq = SeqTracker::default();

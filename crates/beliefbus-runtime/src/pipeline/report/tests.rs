@@ -1,0 +1,270 @@
+//! The run report from synthetic stage statistics.
+
+use super::*;
+use crate::ipc::HopStats;
+use serde_json::json;
+
+fn input() -> ReportInput {
+    let mut ctl = StageStats {
+        stage: StageKind::Control as u32,
+        processed: 10,
+        budget_ns: 700_000,
+        late: 2,
+        response_p50_ns: 400_000,
+        response_p99_ns: 750_000,
+        response_max_ns: 900_000,
+        ..StageStats::default()
+    };
+    ctl.hops[0] = HopStats {
+        hop: Hop::SensorToControl as u32,
+        reserved: 0,
+        pct: Percentiles {
+            count: 9,
+            p50_ns: 1_500,
+            p90_ns: 2_000,
+            p99_ns: 3_000,
+            p999_ns: 4_000,
+            max_ns: 5_000,
+        },
+    };
+    ReportInput {
+        scenario: "ship".into(),
+        duration_s: 1.0,
+        sensor_rate_hz: 100.0,
+        filter_backend: "pf".into(),
+        controller: "mppi".into(),
+        sensor_source: "plant".into(),
+        prefix: "p".into(),
+        stages: StageKind::ALL
+            .iter()
+            .map(|&k| {
+                (
+                    k,
+                    StageEnd {
+                        pid: Some(k as u32),
+                        stats: (k == StageKind::Control).then_some(ctl),
+                        exit: Some("exit 0".into()),
+                    },
+                )
+            })
+            .collect(),
+        accuracy: Accuracy::default(),
+        files_removed: 3,
+        files_left: 0,
+    }
+}
+
+#[test]
+fn json_has_every_documented_key() {
+    let v = input().to_json();
+    for k in [
+        "scenario",
+        "duration_s",
+        "sensor_rate_hz",
+        "filter_backend",
+        "controller",
+        "hops",
+        "stages",
+        "accuracy",
+        "control",
+    ] {
+        assert!(v.get(k).is_some(), "missing {k}");
+    }
+    for h in Hop::ALL {
+        let hop = &v["hops"][h.key()];
+        for k in ["count", "p50_us", "p90_us", "p99_us", "p999_us", "max_us"] {
+            assert!(hop.get(k).is_some(), "hops.{}.{k}", h.key());
+        }
+    }
+    assert_eq!(v["hops"]["sensor->control"]["p50_us"], json!(1.5));
+    assert_eq!(v["hops"]["sensor->control"]["count"], json!(9));
+    // Lateness = response − budget, negative when early; null without data.
+    let c = &v["stages"]["control"];
+    assert_eq!(c["late"], json!(2));
+    assert_eq!(c["lateness_p50_us"], json!(-300.0));
+    assert_eq!(c["lateness_p99_us"], json!(50.0));
+    assert_eq!(c["lateness_max_us"], json!(200.0));
+    assert!(v["stages"]["filter"]["lateness_p99_us"].is_null());
+    for s in StageKind::ALL {
+        let st = &v["stages"][s.name()];
+        for k in [
+            "pid",
+            "core",
+            "processed",
+            "dropped",
+            "rejected",
+            "deadline_misses",
+            "compute_p50_us",
+            "compute_p99_us",
+            "budget_us",
+            "late",
+            "lateness_p50_us",
+            "lateness_p99_us",
+            "lateness_max_us",
+        ] {
+            assert!(st.get(k).is_some(), "stages.{}.{k}", s.name());
+        }
+    }
+    for k in ["rmse_position", "rmse_state", "rmse_position_raw"] {
+        assert!(v["accuracy"].get(k).is_some());
+    }
+    for k in ["waypoints_reached", "mean_distance_to_waypoint"] {
+        assert!(v["control"].get(k).is_some());
+    }
+    for k in [
+        "versions",
+        "states",
+        "delta_s",
+        "swap_p50_us",
+        "swap_p99_us",
+        "mass_lost_max",
+        "fallback_steps",
+        "fallback_episodes",
+        "fallback_reinits",
+        "stale_max_ms",
+    ] {
+        assert!(v["chain"].get(k).is_some(), "chain.{k}");
+    }
+    assert!(v["stages"]["ingest"]["rejected_by_reason"]
+        .get("non_finite")
+        .is_some());
+}
+
+#[test]
+fn control_section_has_controller_cost_and_compute_percentiles() {
+    let mut inp = input();
+    let v = inp.to_json();
+    assert_eq!(v["control"]["controller"], json!("mppi"));
+    // No control data yet: null, not zero.
+    for k in ["cost", "compute_p50_us", "compute_p99_us"] {
+        assert!(v["control"][k].is_null(), "{k}");
+    }
+    let (_, end) = inp
+        .stages
+        .iter_mut()
+        .find(|(k, _)| *k == StageKind::Control)
+        .unwrap();
+    let s = end.stats.as_mut().unwrap();
+    s.control_cost = 12.5;
+    s.control_cost_time_s = 3.0;
+    s.compute = Percentiles {
+        count: 10,
+        p50_ns: 250_000,
+        p90_ns: 300_000,
+        p99_ns: 420_000,
+        p999_ns: 500_000,
+        max_ns: 600_000,
+    };
+    let v = inp.to_json();
+    assert_eq!(v["control"]["cost"], json!(12.5));
+    assert_eq!(v["control"]["compute_p50_us"], json!(250.0));
+    assert_eq!(v["control"]["compute_p99_us"], json!(420.0));
+}
+
+#[test]
+fn render_lists_every_hop_and_stage() {
+    let t = input().render();
+    for h in Hop::ALL {
+        assert!(t.contains(h.key()));
+    }
+    for s in StageKind::ALL {
+        assert!(t.contains(s.name()));
+    }
+}
+
+#[test]
+fn a_written_report_parses_back_with_its_schema_version_and_every_field() {
+    let mut inp = input();
+    inp.accuracy = Accuracy {
+        rmse_position: Some(0.25),
+        rmse_state: Some(f64::NAN),
+        rmse_position_raw: Some(1.5),
+        beliefs: 90,
+        samples: 100,
+    };
+    let report = inp.report();
+    // Written as `beliefbus run --report` writes it, then read back.
+    let dir = crate::rt::files::PrivateDir::create("beliefbus-report-test.").unwrap();
+    let path = dir.path().join("report.json");
+    let text = serde_json::to_string_pretty(&inp.to_json()).unwrap();
+    crate::rt::files::replace_file(&path, (text + "\n").as_bytes()).unwrap();
+    let back = std::fs::read_to_string(&path).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&back).unwrap();
+    assert_eq!(v["schema_version"], json!(REPORT_SCHEMA_VERSION));
+    assert!(v["schema_version"].is_u64());
+    let parsed: RunReport = serde_json::from_str(&back).unwrap();
+    assert_eq!(parsed.schema_version, 1);
+    assert_eq!(parsed.scenario, "ship");
+    assert_eq!(parsed.controller, "mppi");
+    assert_eq!(parsed.hops["sensor->control"].p50_us, Some(1.5));
+    assert_eq!(parsed.hops["sensor->ingest"], HopJson::default());
+    assert_eq!(parsed.stages["control"].lateness_p99_us, Some(50.0));
+    assert_eq!(
+        parsed.stages["control"].exit_status.as_deref(),
+        Some("exit 0")
+    );
+    assert_eq!(parsed.accuracy.rmse_position, Some(0.25));
+    // A non-finite figure is written as null.
+    assert_eq!(parsed.accuracy.rmse_state, None);
+    assert_eq!(parsed.shared_memory.files_removed, 3);
+    // Nothing lost or added on the way: the whole report compares equal,
+    // and its JSON has exactly the struct's keys.
+    let mut expected = report;
+    expected.accuracy.rmse_state = None;
+    assert_eq!(parsed, expected);
+    assert_eq!(serde_json::to_value(&parsed).unwrap(), v);
+}
+
+#[test]
+fn every_reason_list_names_every_variant_in_counter_order() {
+    use crate::stage::{chain_guard, control, filter, ingest, plant, DropReason};
+    use strum::VariantNames;
+    fn names<T: Copy + Into<&'static str>>(all: &[T]) -> Vec<&'static str> {
+        all.iter().map(|&r| r.into()).collect()
+    }
+    // VARIANTS is in declaration order, which is the counter index order
+    // (the discriminants): an ALL list missing a variant fails here.
+    assert_eq!(names(&ingest::Reason::ALL), ingest::Reason::VARIANTS);
+    assert_eq!(names(&filter::Reason::ALL), filter::Reason::VARIANTS);
+    assert_eq!(names(&control::Reason::ALL), control::Reason::VARIANTS);
+    assert_eq!(names(&plant::Reason::ALL), plant::Reason::VARIANTS);
+    assert_eq!(
+        names(&chain_guard::Cause::ALL),
+        chain_guard::Cause::VARIANTS
+    );
+    assert_eq!(names(&DropReason::ALL), DropReason::VARIANTS);
+    for (i, r) in ingest::Reason::ALL.iter().enumerate() {
+        assert_eq!(*r as usize, i);
+    }
+    for (i, r) in filter::Reason::ALL.iter().enumerate() {
+        assert_eq!(*r as usize, i);
+    }
+    // The plant refuses what every actuator refuses, under the same names.
+    use crate::ipc::ControlReject;
+    assert_eq!(
+        names(&[
+            ControlReject::Dimension,
+            ControlReject::NonFinite,
+            ControlReject::Limit
+        ]),
+        &plant::Reason::VARIANTS[..3]
+    );
+    // Report keys: the documented names.
+    assert_eq!(
+        filter::Reason::VARIANTS,
+        [
+            "time_backwards",
+            "dimension",
+            "non_finite",
+            "degenerate",
+            "numerical",
+            "snapshot",
+            "time_out_of_range",
+            "foreign_publisher"
+        ]
+    );
+    assert_eq!(
+        DropReason::VARIANTS,
+        ["lost", "stale", "superseded", "shutdown"]
+    );
+}
