@@ -15,6 +15,7 @@ use crate::filter::kalman::Kalman;
 use crate::model::linear::LinearSde;
 use crate::model::{simulate_observation, Bounds};
 use nalgebra::DMatrix;
+use std::time::Duration;
 
 /// Bounds wide enough that the belief stays inside them over the runs. A
 /// version drawn around a belief at or beyond a bound is rejection-sampled
