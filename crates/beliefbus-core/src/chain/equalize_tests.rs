@@ -124,6 +124,8 @@ fn random_chain(n: usize, delta: f64, seed: u64) -> (Vec<f64>, Vec<u32>, Vec<u32
     (holding, off, cols, probs)
 }
 
+/// About 100 lines: one scenario (random chain, sparse support, several
+/// θ and epochs) compared step by step with the dense map.
 #[test]
 fn sparse_push_over_the_support_equals_the_dense_step() {
     // The filter's sparse step against the dense gather (P^δ)ᵀ φ on a

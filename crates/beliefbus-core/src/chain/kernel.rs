@@ -371,6 +371,11 @@ pub fn moment_matched(
 /// advected form: the flow's displacement over Δt instead of fΔt):
 /// Σ p_k Δz_k = mean, Σ p_k Δz_k Δz_kᵀ = F Fᵀ Δt + mean meanᵀ.
 /// `mean_weight` weights the mean rows in the least-violation fit.
+///
+/// One function of about 100 lines: the prior weights, the moment
+/// matrix, the weighted NNLS (feasibility or least violation) and the
+/// Gaussian fallback of a degenerate fit are consecutive steps on the same
+/// scratch (`work`) and row (`p`), each read once in order.
 #[allow(clippy::too_many_arguments)]
 pub fn moment_matched_at(
     d: usize,

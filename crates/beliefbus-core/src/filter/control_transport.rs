@@ -326,6 +326,10 @@ impl ControlTransport {
     /// pieces of about one jump length, which keeps the upwind scheme's
     /// numerical diffusion low (a piece of displacement D ≤ ρ along a jump
     /// of length ρ adds variance ρD − D², zero at D = ρ).
+    ///
+    /// About 90 lines: the active set and its rates, the substep count
+    /// (h_s Σλ ≤ 1) and the substeps with the outflow cap share the same
+    /// per-call buffers and are one explicit scheme, read in order.
     pub fn apply(
         &mut self,
         view: &SnapshotView,

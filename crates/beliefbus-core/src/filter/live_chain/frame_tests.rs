@@ -81,6 +81,9 @@ struct Case {
 }
 
 /// Run `case` from a moving start (v = 2), seeded.
+/// About 110 lines: one closed simulation (truth, refine's versions,
+/// the filter, Kalman and the gap statistics) whose steps share the loop
+/// state; split, the pieces would pass it all around.
 fn run(case: Case, seed: u64) -> Gap {
     let Case {
         moving,
