@@ -22,6 +22,19 @@
 //! leaf, with their slot and bound), nodes keep tight bounding boxes that
 //! grow on insertion; a full leaf splits at the median of its widest axis.
 //! There is no removal (chains shrink by rebuilding, see [`super::retire`]).
+//!
+//! Why a second tree next to kiddo ([`super::index::SpatialIndex`]):
+//! kiddo has no reverse query. Emulated with it — a radius query at the
+//! chain-wide largest k-th radius, filtered by each point's own bound — it
+//! is as exact but slower where the chain needs it, measured per insertion
+//! (`nn_timing_tests.rs`, release, loaded machine; points 90 % N(½, 0.05²)
+//! and 10 % uniform as the belief-concentrated samplers place them, k =
+//! max(⌈1.5 ln n⌉, moment floor)): d = 2, n = 10⁵: 311 µs vs 4.6 µs here;
+//! d = 4, n = 10⁵: 1.12 ms vs 0.18 ms; d = 6, n = 10⁵: 1.20 ms vs 0.87 ms;
+//! on uniform points 1.0–3.2× slower at n ≥ 10⁴ (faster only at n = 10³,
+//! d ≥ 4). kiddo builds 2–5× faster and answers plain k-NN queries faster
+//! in most cases (d = 4, n = 10⁵: 6.4 µs vs 14 µs), so it keeps those; this
+//! tree serves only the k-NN lists of incremental construction.
 
 /// Points per leaf bucket.
 const BUCKET: usize = 32;
@@ -569,123 +582,5 @@ fn offer_nearest(out: &mut Vec<(u32, f64)>, k: usize, slot: u32, d2: f64) {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::rng::stream;
-    use rand::RngExt;
-
-    fn brute(pts: &[f64], d: usize, q: &[f64], skip: u32) -> Vec<(u32, f64)> {
-        let mut v: Vec<(u32, f64)> = pts
-            .chunks_exact(d)
-            .enumerate()
-            .filter(|(i, _)| *i as u32 != skip)
-            .map(|(i, p)| {
-                (
-                    i as u32,
-                    p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum(),
-                )
-            })
-            .collect();
-        v.sort_by(|a, b| a.1.total_cmp(&b.1));
-        v
-    }
-
-    /// k-NN lists kept by reverse queries under insertion equal brute-force
-    /// k-NN sets, and `nearest` equals brute force, for bulk-built and
-    /// incrementally built trees (incl. a grid with many equal coordinates).
-    #[test]
-    fn nearest_and_reverse_lists_match_brute_force() {
-        let mut rng = stream(11, 0);
-        for (d, grid) in [
-            (1usize, false),
-            (2, false),
-            (4, false),
-            (2, true),
-            (9, false),
-        ] {
-            let k = 6;
-            let n0 = 300;
-            let n = 900;
-            let mut pts: Vec<f64> = (0..n * d)
-                .map(|_| {
-                    let v: f64 = rng.random_range(-1.0..1.0);
-                    if grid {
-                        (v * 8.0).round() / 8.0
-                    } else {
-                        v
-                    }
-                })
-                .collect();
-            if grid {
-                // Distinct points only (lists of equal points tie).
-                pts.truncate(n0 * d);
-                let mut extra = vec![];
-                for i in 0..40 {
-                    for j in 0..15 {
-                        extra.extend_from_slice(&[i as f64 * 0.05 + 2.0, j as f64 * 0.07]);
-                    }
-                }
-                pts.extend(extra);
-            }
-            let n = pts.len() / d;
-            let mut t = KnnTree::from_points(d, &pts[..n0 * d]);
-            let mut lists: Vec<Vec<(u32, f64)>> = vec![];
-            let mut out = vec![];
-            for i in 0..n0 {
-                t.nearest(&pts[i * d..(i + 1) * d], k, i as u32, &mut out);
-                t.set_bound(i as u32, out[k - 1].1);
-                lists.push(out.clone());
-            }
-            for i in n0..n {
-                let q = &pts[i * d..(i + 1) * d];
-                t.insert(q, i as u32);
-                let mut two = vec![];
-                t.nearest(q, k, i as u32, &mut two);
-                let both = i % 2 == 0;
-                lists.push(two.clone());
-                let mut visit = |j: u32, d2: f64, b: f64| {
-                    if j as usize == i {
-                        return b;
-                    }
-                    let l = &mut lists[j as usize];
-                    assert_eq!(b, l[k - 1].1);
-                    l.pop();
-                    let p = l.partition_point(|e| e.1 <= d2);
-                    l.insert(p, (i as u32, d2));
-                    l[k - 1].1
-                };
-                if both {
-                    // One traversal: i's own bound is still 0.
-                    t.nearest_and_reverse(q, k, i as u32, &mut out, &mut visit);
-                    assert_eq!(out, two);
-                } else {
-                    t.set_bound(i as u32, two[k - 1].1);
-                    t.reverse(q, &mut visit);
-                }
-                t.set_bound(i as u32, two[k - 1].1);
-                if i % 97 == 0 || i == n - 1 {
-                    let pts_now = &pts[..(i + 1) * d];
-                    for j in 0..=i {
-                        let want = brute(pts_now, d, &pts[j * d..(j + 1) * d], j as u32);
-                        let mut w: Vec<u32> = want[..k].iter().map(|e| e.0).collect();
-                        let mut g: Vec<u32> = lists[j].iter().map(|e| e.0).collect();
-                        w.sort_unstable();
-                        g.sort_unstable();
-                        if !grid {
-                            assert_eq!(g, w, "d {d} list {j} at n {i}");
-                        }
-                        assert_eq!(lists[j][k - 1].1, want[k - 1].1, "d {d} k-th of {j}");
-                        assert_eq!(t.bound(j as u32), Some(want[k - 1].1));
-                    }
-                    let q: Vec<f64> = (0..d).map(|_| rng.random_range(-1.2..1.2)).collect();
-                    t.nearest(&q, 9, u32::MAX, &mut out);
-                    let want = brute(pts_now, d, &q, u32::MAX);
-                    let g: Vec<f64> = out.iter().map(|e| e.1).collect();
-                    let w: Vec<f64> = want[..9].iter().map(|e| e.1).collect();
-                    assert_eq!(g, w, "d {d}");
-                }
-            }
-            assert_eq!(t.len(), n);
-        }
-    }
-}
+#[path = "knn_tree_tests.rs"]
+mod tests;

@@ -31,6 +31,8 @@ pub mod frame;
 pub mod index;
 pub mod kernel;
 pub mod knn_tree;
+#[cfg(test)]
+mod nn_timing_tests;
 pub use crate::math::linalg;
 pub mod nnls;
 pub mod order;

@@ -14,6 +14,12 @@
 //! sorts by the Hilbert index computed with Skilling's transpose algorithm
 //! (J. Skilling, "Programming the Hilbert curve", AIP Conf. Proc. 707,
 //! 2004), valid in any dimension.
+//!
+//! The one space-filling order of the crate: it also orders batch
+//! ConnectState ([`super::build`]), which used a Morton order before.
+//! Measured locality (mean distance between consecutive states, 20 000
+//! states N(0, 0.7²) per axis, `build/order_timing_tests.rs`): d = 2 0.0244
+//! (Morton 0.0360), d = 4 0.297 (0.345), d = 6 0.739 (0.800).
 
 /// Bits per coordinate of the Hilbert key in dimension `d`.
 fn bits_for(d: usize) -> u32 {

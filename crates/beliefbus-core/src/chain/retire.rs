@@ -20,6 +20,10 @@ use crate::model::SdeModel;
 
 /// Remove the states whose `keep` flag is false. Returns the reduced chain;
 /// `touched` receives the slots (in the new chain) that were reconnected.
+///
+/// About 85 lines: filtering the rows, importing the kept states and
+/// reconnecting the affected rows are the three steps of one version
+/// change (see the module doc), in order.
 pub fn retire<M: SdeModel + ?Sized>(
     model: &M,
     chain: &mut Chain,

@@ -254,10 +254,25 @@ pub struct SnapshotView<'a> {
     pub in_src: &'a [u32],
 }
 
-impl<'a> SnapshotView<'a> {
+/// The header of a snapshot and where its sections are: what
+/// [`SnapshotView::parse`] checks once. A holder keeps it next to the words
+/// ([`HeldSnapshot`]) and reads the view again without checking anything.
+#[derive(Clone, Copy, Debug)]
+pub struct SnapshotLayout {
+    version: u64,
+    lineage: u64,
+    dim: usize,
+    n: usize,
+    nnz: usize,
+    delta: f64,
+    t_pub_ns: u64,
+    sections: Sections,
+}
+
+impl SnapshotLayout {
     /// Read the header and locate the sections (O(1): no index is checked;
-    /// see [`Self::validate_rows`]).
-    pub fn parse(w: &'a [u64]) -> Result<Self, SnapshotError> {
+    /// see [`SnapshotView::validate_rows`]).
+    pub fn parse(w: &[u64]) -> Result<Self, SnapshotError> {
         if w.len() < HEADER_WORDS {
             return Err(SnapshotError::Shape("shorter than its header"));
         }
@@ -271,8 +286,8 @@ impl<'a> SnapshotView<'a> {
         if dim == 0 || dim > crate::MAX_STATE {
             return Err(SnapshotError::Shape("state dimension out of range"));
         }
-        let s = Sections::new(dim, n, nnz);
-        if w[8] != s.end as u64 || s.end > w.len() {
+        let sections = Sections::new(dim, n, nnz);
+        if w[8] != sections.end as u64 || sections.end > w.len() {
             return Err(SnapshotError::Shape(
                 "total length does not match the sizes",
             ));
@@ -281,14 +296,31 @@ impl<'a> SnapshotView<'a> {
         if !(delta.is_finite() && delta > 0.0) {
             return Err(SnapshotError::Shape("δ must be positive and finite"));
         }
-        let fs = |at: usize, len: usize| as_f64(&w[at..at + len]);
-        let us = |at: usize, len: usize| as_u32(&w[at..at + words_u32(len)], len);
         Ok(Self {
             version: w[1],
             lineage: w[2],
             dim,
+            n,
+            nnz,
             delta,
             t_pub_ns: w[7],
+            sections,
+        })
+    }
+
+    /// The view of `w`, the words this layout was parsed from (or words
+    /// at least as long with the same header). Slicing panics if `w` is
+    /// shorter than the layout's end: a caller bug, never a bad snapshot.
+    pub fn view<'a>(&self, w: &'a [u64]) -> SnapshotView<'a> {
+        let (s, n, nnz, dim) = (&self.sections, self.n, self.nnz, self.dim);
+        let fs = |at: usize, len: usize| as_f64(&w[at..at + len]);
+        let us = |at: usize, len: usize| as_u32(&w[at..at + words_u32(len)], len);
+        SnapshotView {
+            version: self.version,
+            lineage: self.lineage,
+            dim,
+            delta: self.delta,
+            t_pub_ns: self.t_pub_ns,
             states: fs(s.states, n * dim),
             holding: fs(s.holding, n),
             radius: fs(s.radius, n),
@@ -301,7 +333,36 @@ impl<'a> SnapshotView<'a> {
             cols: us(s.cols, nnz),
             in_off: us(s.in_off, n + 1),
             in_src: us(s.in_src, nnz),
-        })
+        }
+    }
+}
+
+/// A snapshot held as `S` (a shared-memory sample, a `Vec<u64>`) whose
+/// header parsed: its view is read without re-checking, so code that holds
+/// one never handles a parse error it cannot get. `S::as_ref` must return
+/// the same words every time (true of every slice owner).
+pub struct HeldSnapshot<S> {
+    snap: S,
+    layout: SnapshotLayout,
+}
+
+impl<S: AsRef<[u64]>> HeldSnapshot<S> {
+    /// Parse the header of `snap` and keep both.
+    pub fn new(snap: S) -> Result<Self, SnapshotError> {
+        let layout = SnapshotLayout::parse(snap.as_ref())?;
+        Ok(Self { snap, layout })
+    }
+    /// The snapshot read in place.
+    pub fn view(&self) -> SnapshotView<'_> {
+        self.layout.view(self.snap.as_ref())
+    }
+}
+
+impl<'a> SnapshotView<'a> {
+    /// Read the header and locate the sections (O(1): no index is checked;
+    /// see [`Self::validate_rows`]).
+    pub fn parse(w: &'a [u64]) -> Result<Self, SnapshotError> {
+        Ok(SnapshotLayout::parse(w)?.view(w))
     }
 
     /// Number of states.

@@ -15,6 +15,7 @@ use crate::filter::kalman::Kalman;
 use crate::model::linear::LinearSde;
 use crate::model::{simulate_observation, Bounds};
 use nalgebra::DMatrix;
+use std::time::Duration;
 
 /// Bounds wide enough that the belief stays inside them over the runs. A
 /// version drawn around a belief at or beyond a bound is rejection-sampled
@@ -80,6 +81,9 @@ struct Case {
 }
 
 /// Run `case` from a moving start (v = 2), seeded.
+/// About 110 lines: one closed simulation (truth, refine's versions,
+/// the filter, Kalman and the gap statistics) whose steps share the loop
+/// state; split, the pieces would pass it all around.
 fn run(case: Case, seed: u64) -> Gap {
     let Case {
         moving,
