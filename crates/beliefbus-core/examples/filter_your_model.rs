@@ -21,7 +21,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let model = Oscillator(Bounds::new_box(&[-5.0, -5.0], &[5.0, 5.0])?);
     let prior = Gaussian::diagonal(&[1.0, 0.0], &[0.3, 0.3]);
     let cfg = PfConfig { particles: 500, seed: 7, ..PfConfig::default() };
-    let mut pf = cfg.build(Oscillator(model.0.clone()), &prior, 0.0)?;
+    let mut pf = cfg.build(Oscillator(model.0), &prior, 0.0)?;
     let mut rng = beliefbus_core::rng::stream(7, 0);
     let (mut x, mut y, dt, mut sq_err) = (vec![1.0, 0.0], [0.0], 0.05, 0.0);
     for k in 1..=400 {
