@@ -36,6 +36,7 @@ use super::build::{self, BuildError, ConfigError};
 use super::gauss::{self, Mat, ObsMat, HALF_LOG_2PI};
 use super::{check_measurement, check_predict, BayesFilter, FilterError, UpdateInfo};
 use crate::belief::Gaussian;
+use crate::math::linalg;
 use crate::model::{Dims, Measurement, SdeModel};
 use crate::{MAX_NOISE, MAX_OBS, MAX_STATE};
 use serde::{Deserialize, Serialize};
@@ -228,8 +229,11 @@ impl<M: SdeModel> Ukf<M> {
         let n = self.dims.state;
         let mut l: Mat = [0.0; MAX_STATE * MAX_STATE];
         l[..n * n].copy_from_slice(&p[..n * n]);
-        gauss::cholesky_psd(&mut l, n)
-            .map_err(|_| FilterError::Numerical("covariance is not positive semi-definite"))?;
+        if !linalg::cholesky_psd(&mut l, n) {
+            return Err(FilterError::Numerical(
+                "covariance is not positive semi-definite",
+            ));
+        }
         chi[..n].copy_from_slice(&m[..n]);
         for j in 0..n {
             for r in 0..n {
@@ -415,8 +419,9 @@ impl<M: SdeModel> BayesFilter for Ukf<M> {
         }
         gauss::symmetrize(&mut s, p);
         let mut ls = s;
-        gauss::cholesky(&mut ls, p)
-            .map_err(|_| FilterError::Numerical("innovation covariance not PD"))?;
+        if !linalg::cholesky(&mut ls, p) {
+            return Err(FilterError::Numerical("innovation covariance not PD"));
+        }
         // Innovation y ⊖ ŷ on the mask.
         self.model
             .obs_residual(&meas.y[..mo], &yhat[..mo], &mut r[..mo]);
@@ -425,10 +430,10 @@ impl<M: SdeModel> BayesFilter for Ukf<M> {
             rs[a] = r[idx[a]];
         }
         let mut z = rs;
-        gauss::chol_solve(&ls, p, &mut z, 1);
+        linalg::chol_solve(&ls, p, &mut z, 1);
         let quad: f64 = (0..p).map(|a| rs[a] * z[a]).sum();
         let log_evidence =
-            -0.5 * quad - 0.5 * gauss::chol_log_det(&ls, p) - p as f64 * HALF_LOG_2PI;
+            -0.5 * quad - 0.5 * linalg::chol_log_det(&ls, p) - p as f64 * HALF_LOG_2PI;
         // Kᵀ = S⁻¹ Cᵀ (p × n).
         let mut kt: ObsMat = [0.0; MAX_OBS * MAX_STATE];
         for a in 0..p {
@@ -436,7 +441,7 @@ impl<M: SdeModel> BayesFilter for Ukf<M> {
                 kt[a + row * p] = c[row + a * n];
             }
         }
-        gauss::chol_solve(&ls, p, &mut kt, n);
+        linalg::chol_solve(&ls, p, &mut kt, n);
         let mut m = self.mean;
         for row in 0..n {
             for a in 0..p {
