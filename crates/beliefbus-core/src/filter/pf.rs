@@ -21,9 +21,10 @@
 
 use super::build::{self, BuildError, ConfigError};
 use super::gauss::{self, HALF_LOG_2PI};
-use super::resample::{self, Scheme};
+use super::resample::Scheme;
 use super::{check_measurement, check_predict, BayesFilter, FilterError, UpdateInfo};
 use crate::belief::Gaussian;
+use crate::math::weights;
 use crate::model::{em_step, Dims, Measurement, SdeModel};
 use crate::rng::{self, SimRng};
 use crate::{MAX_OBS, MAX_STATE};
@@ -221,7 +222,8 @@ impl<M: SdeModel> Pf<M> {
     pub fn weights(&self) -> &[f64] {
         &self.w
     }
-    /// Effective sample size of the current weights.
+    /// Effective sample size 1/Σ W² of the current normalised weights
+    /// (kept from the last normalisation, [`weights::normalise`]).
     pub fn ess(&self) -> f64 {
         self.ess
     }
@@ -314,7 +316,7 @@ impl<M: SdeModel> BayesFilter for Pf<M> {
                     f64::NEG_INFINITY
                 };
             }
-            let s = resample::normalize(&self.lw_new, &mut self.w)
+            let s = weights::normalise(&self.lw_new, &mut self.w)
                 .ok_or(FilterError::Numerical("every particle diverged"))?;
             for (lw, &l) in self.lw.iter_mut().zip(&self.lw_new) {
                 *lw = l - s.log_sum;
@@ -371,7 +373,7 @@ impl<M: SdeModel> BayesFilter for Pf<M> {
                 self.lw[i] + ll
             };
         }
-        let s = resample::normalize(&self.lw_new, &mut self.w).ok_or(FilterError::Degenerate)?;
+        let s = weights::normalise(&self.lw_new, &mut self.w).ok_or(FilterError::Degenerate)?;
         for (lw, &l) in self.lw.iter_mut().zip(&self.lw_new) {
             *lw = l - s.log_sum;
         }

@@ -62,13 +62,13 @@ fn timing_ess() {
         .collect();
     let mut w = vec![0.0; 1000];
     let t = ns_per_op(2_000, || {
-        black_box(crate::math::weights::ess(black_box(&lw)));
+        black_box(crate::math::weights::ess_from_log(black_box(&lw)));
     });
-    println!("ess of 1000 log weights (math::weights): {t:.1} ns/op");
+    println!("ess_from_log of 1000 log weights: {t:.1} ns/op");
     let t = ns_per_op(2_000, || {
-        black_box(crate::filter::resample::normalize(black_box(&lw), &mut w));
+        black_box(crate::math::weights::normalise(black_box(&lw), &mut w));
     });
-    println!("normalise + ess of 1000 log weights (filter::resample): {t:.1} ns/op");
+    println!("normalise (+ ess) of 1000 log weights: {t:.1} ns/op");
 }
 
 #[test]
