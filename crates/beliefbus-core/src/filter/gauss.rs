@@ -1,22 +1,13 @@
-//! Shared machinery of the Gaussian filters (Kalman, EKF, UKF) and of the
-//! particle filter's prior: small dense linear algebra on column-major stack
-//! buffers (dimensions ≤ [`MAX_STATE`]/[`MAX_OBS`], so nothing allocates),
-//! prior validation, and the masked linear(ised) measurement update in
-//! Joseph form:
-//!
-//! ```text
-//! S = H P Hᵀ + R,   K = P Hᵀ S⁻¹,   m⁺ = m + K r,
-//! P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ
-//! log p(y) = −½ rᵀ S⁻¹ r − ½ log det S − (p/2) log 2π
-//! ```
-//!
-//! restricted to the p rows of the observation that a measurement's mask
-//! carries, with R = diag(σ²) from the measurement or the model.
+//! Shared numerics of the Gaussian filters (Kalman, EKF, UKF) and of the
+//! particle filter's prior: small dense products on column-major stack
+//! buffers (dimensions ≤ [`MAX_STATE`]/[`MAX_OBS`], so nothing allocates;
+//! the Cholesky factorisation is [`crate::math::linalg`]'s), prior
+//! validation, and RK4 on the moment equations. The belief state and the
+//! masked measurement update built on them are in `gauss_state`.
 
 use super::FilterError;
 use crate::belief::Gaussian;
-use crate::math::linalg::{chol_log_det, chol_solve, cholesky, cholesky_psd};
-use crate::model::ObsMask;
+use crate::math::linalg::cholesky_psd;
 use crate::{MAX_OBS, MAX_STATE};
 
 /// A d × d scratch matrix.
@@ -127,114 +118,6 @@ pub(crate) fn prior_factor(prior: &Gaussian) -> Result<Mat, FilterError> {
         ));
     }
     Ok(l)
-}
-
-/// Masked Joseph-form update of (mean, cov) of dimension d.
-///
-/// `h` is the full m × d observation matrix (Jacobian), `r` the full
-/// innovation y ⊖ ŷ (length m, already wrapped by the model), `std` the
-/// per-component σ (length m). Only the components in `mask` are used.
-/// Returns log p(y) of the masked components; on failure (S or P⁺ not
-/// positive definite, non-finite result) nothing is modified.
-pub(crate) fn masked_joseph_update(
-    d: usize,
-    m: usize,
-    mean: &mut [f64],
-    cov: &mut [f64],
-    h: &[f64],
-    r: &[f64],
-    std: &[f64],
-    mask: ObsMask,
-) -> Result<f64, FilterError> {
-    // Gather the p masked rows.
-    let mut hs: ObsMat = [0.0; MAX_OBS * MAX_STATE]; // p × d
-    let mut rs = [0.0; MAX_OBS];
-    let mut var = [0.0; MAX_OBS];
-    let mut p = 0;
-    let rows = mask.iter().take_while(|&i| i < m);
-    let mut idx = [0usize; MAX_OBS];
-    for i in rows {
-        idx[p] = i;
-        p += 1;
-    }
-    if p == 0 {
-        return Ok(0.0);
-    }
-    for (a, &i) in idx[..p].iter().enumerate() {
-        for j in 0..d {
-            hs[a + j * p] = h[i + j * m];
-        }
-        rs[a] = r[i];
-        var[a] = std[i] * std[i];
-    }
-    // PHᵀ (d × p) and S = H PHᵀ + R (p × p).
-    let mut pht: ObsMat = [0.0; MAX_OBS * MAX_STATE];
-    mul_bt(cov, d, d, &hs, p, &mut pht);
-    let mut s = [0.0; MAX_OBS * MAX_OBS];
-    mul(&hs, p, d, &pht, p, &mut s);
-    for a in 0..p {
-        s[a + a * p] += var[a];
-    }
-    symmetrize(&mut s, p);
-    let mut ls = s;
-    if !cholesky(&mut ls, p) {
-        return Err(FilterError::Numerical("innovation covariance not PD"));
-    }
-    // Kᵀ = S⁻¹ (PHᵀ)ᵀ  (p × d).
-    let mut kt: ObsMat = [0.0; MAX_OBS * MAX_STATE];
-    for a in 0..p {
-        for j in 0..d {
-            kt[a + j * p] = pht[j + a * d];
-        }
-    }
-    chol_solve(&ls, p, &mut kt, d);
-    // Evidence.
-    let mut z = rs;
-    chol_solve(&ls, p, &mut z, 1);
-    let quad: f64 = (0..p).map(|a| rs[a] * z[a]).sum();
-    let log_ev = -0.5 * quad - 0.5 * chol_log_det(&ls, p) - p as f64 * HALF_LOG_2PI;
-    // m⁺ = m + K r.
-    let mut new_mean = [0.0; MAX_STATE];
-    for j in 0..d {
-        let mut v = mean[j];
-        for a in 0..p {
-            v += kt[a + j * p] * rs[a];
-        }
-        new_mean[j] = v;
-    }
-    // Joseph form: (I − KH) P (I − KH)ᵀ + K R Kᵀ.
-    let mut ikh: Mat = [0.0; MAX_STATE * MAX_STATE];
-    for c in 0..d {
-        for rr in 0..d {
-            let mut v = if rr == c { 1.0 } else { 0.0 };
-            for a in 0..p {
-                v -= kt[a + rr * p] * hs[a + c * p];
-            }
-            ikh[rr + c * d] = v;
-        }
-    }
-    let mut tmp: Mat = [0.0; MAX_STATE * MAX_STATE];
-    mul(&ikh, d, d, cov, d, &mut tmp);
-    let mut new_cov: Mat = [0.0; MAX_STATE * MAX_STATE];
-    mul_bt(&tmp, d, d, &ikh, d, &mut new_cov);
-    for c in 0..d {
-        for rr in 0..d {
-            let mut v = 0.0;
-            for a in 0..p {
-                v += kt[a + rr * p] * var[a] * kt[a + c * p];
-            }
-            new_cov[rr + c * d] += v;
-        }
-    }
-    symmetrize(&mut new_cov, d);
-    if !new_mean[..d].iter().all(|v| v.is_finite()) || !is_psd(&new_cov, d) {
-        return Err(FilterError::Numerical(
-            "updated covariance is not positive semi-definite",
-        ));
-    }
-    mean[..d].copy_from_slice(&new_mean[..d]);
-    cov[..d * d].copy_from_slice(&new_cov[..d * d]);
-    Ok(log_ev)
 }
 
 /// Classical RK4 on the moment equations ṁ = f(m), Ṗ = A P + P Aᵀ + F Fᵀ

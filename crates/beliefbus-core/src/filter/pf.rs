@@ -21,8 +21,9 @@
 
 use super::build::{self, BuildError, ConfigError};
 use super::gauss::{self, HALF_LOG_2PI};
+use super::gauss_state::{predict_span, reset_or_keep};
 use super::resample::Scheme;
-use super::{check_measurement, check_predict, BayesFilter, FilterError, UpdateInfo};
+use super::{check_measurement, BayesFilter, FilterError, UpdateInfo};
 use crate::belief::Gaussian;
 use crate::math::weights;
 use crate::model::{em_step, Dims, Measurement, SdeModel};
@@ -265,17 +266,13 @@ impl<M: SdeModel> BayesFilter for Pf<M> {
         self.t
     }
     fn reset(&mut self, t: f64, prior: &Gaussian) {
-        if let Err(e) = self.try_reset(t, prior) {
-            tracing::warn!("pf: reset rejected ({e}); belief kept");
-        }
+        reset_or_keep("pf", self.try_reset(t, prior));
     }
 
     fn predict(&mut self, t: f64, u: &[f64]) -> Result<(), FilterError> {
-        check_predict(self.t, t, u, self.dims)?;
-        let dur = t - self.t;
-        if dur == 0.0 {
+        let Some(dur) = predict_span(self.t, t, u, self.dims)? else {
             return Ok(());
-        }
+        };
         let steps = (dur / self.cfg.max_dt).ceil().max(1.0);
         let h = dur / steps;
         let steps = steps as usize;
