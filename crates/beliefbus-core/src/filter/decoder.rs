@@ -81,6 +81,9 @@ impl Decoded {
 /// Viterbi on M_n^δ: the most probable chain path given sampled
 /// observations `ys` (K × m) at `times` after `t0`, from the prior mass
 /// `prior`. Returns the path at t₀ and at every observation time.
+// One function (~110 lines): the checks, the forward max-product pass and
+// the back-tracking share the score and back-pointer arrays (thesis
+// Alg. 3.1 read in one place).
 pub fn viterbi<M: SdeModel>(
     model: &M,
     view: &ChainView,
@@ -310,6 +313,9 @@ impl<M: SdeModel> SdeModel for TimeAugmented<'_, M> {
 /// {T} × S may carry a tiny jitter in t: the k-d tree cannot hold many
 /// points with one equal coordinate). `g_coeff` is the diagonal of
 /// G in dy = g(x) dt + G dv; `inner` supplies g.
+// One function (~120 lines): the time-ordered pass over in-edges and the
+// back-tracking share the score and back-pointer arrays (thesis Alg. 3.2
+// read in one place).
 pub fn decode_time_augmented<M: SdeModel>(
     inner: &M,
     view: &ChainView,
@@ -473,6 +479,8 @@ mod tests {
     }
 
     #[test]
+    // Long: the DAG, its path enumeration and the comparison belong
+    // together so the brute force visibly uses the same scores.
     fn time_augmented_viterbi_matches_brute_force_over_dag_paths() {
         // (t, x) states: root at t=0; two layers; two end states at T = 1.
         let states = vec![

@@ -18,7 +18,8 @@
 
 use super::build::{self, BuildError, ConfigError};
 use super::gauss::{self, Mat, ObsMat};
-use super::{check_measurement, check_predict, BayesFilter, FilterError, UpdateInfo};
+use super::gauss_state::{gaussian_info, measurement_std, predict_span, reset_or_keep, GaussState};
+use super::{check_measurement, BayesFilter, FilterError, UpdateInfo};
 use crate::belief::Gaussian;
 use crate::model::{Dims, Measurement, SdeJacobians};
 use crate::{MAX_NOISE, MAX_OBS, MAX_STATE};
@@ -79,9 +80,7 @@ pub struct Ekf<M: SdeJacobians> {
     model: M,
     cfg: EkfConfig,
     dims: Dims,
-    t: f64,
-    mean: [f64; MAX_STATE],
-    cov: Mat,
+    s: GaussState,
 }
 
 impl<M: SdeJacobians> Ekf<M> {
@@ -95,43 +94,22 @@ impl<M: SdeJacobians> Ekf<M> {
         cfg.validate()?;
         let dims = model.dims();
         build::check_dims(dims)?;
-        gauss::check_prior(prior, dims.state)?;
-        if !t0.is_finite() {
-            return Err(FilterError::NonFinite("time").into());
-        }
-        let mut e = Self {
+        Ok(Self {
+            s: GaussState::new(dims.state, prior, t0)?,
             model,
             cfg: cfg.clone(),
             dims,
-            t: t0,
-            mean: [0.0; MAX_STATE],
-            cov: [0.0; MAX_STATE * MAX_STATE],
-        };
-        e.set_belief(prior);
-        Ok(e)
+        })
     }
 
     /// Restart from `prior` at `t`, rejecting an invalid prior.
     pub fn try_reset(&mut self, t: f64, prior: &Gaussian) -> Result<(), FilterError> {
-        if !t.is_finite() {
-            return Err(FilterError::NonFinite("time"));
-        }
-        gauss::check_prior(prior, self.dims.state)?;
-        self.t = t;
-        self.set_belief(prior);
-        Ok(())
+        self.s.try_reset(t, prior)
     }
 
     /// The model.
     pub fn model(&self) -> &M {
         &self.model
-    }
-
-    fn set_belief(&mut self, prior: &Gaussian) {
-        let d = self.dims.state;
-        self.mean[..d].copy_from_slice(prior.mean());
-        self.cov[..d * d].copy_from_slice(prior.cov());
-        gauss::symmetrize(&mut self.cov, d);
     }
 
     /// Right-hand side of the moment equations at (m, P).
@@ -164,25 +142,21 @@ impl<M: SdeJacobians> BayesFilter for Ekf<M> {
         self.dims
     }
     fn time(&self) -> f64 {
-        self.t
+        self.s.t
     }
     fn reset(&mut self, t: f64, prior: &Gaussian) {
-        if let Err(e) = self.try_reset(t, prior) {
-            tracing::warn!("ekf: reset rejected ({e}); belief kept");
-        }
+        reset_or_keep("ekf", self.try_reset(t, prior));
     }
 
     fn predict(&mut self, t: f64, u: &[f64]) -> Result<(), FilterError> {
-        check_predict(self.t, t, u, self.dims)?;
-        let dur = t - self.t;
-        if dur == 0.0 {
+        let Some(dur) = predict_span(self.s.t, t, u, self.dims)? else {
             return Ok(());
-        }
+        };
         let d = self.dims.state;
         let steps = (dur / self.cfg.max_dt).ceil().max(1.0);
         let h = dur / steps;
-        let mut m = self.mean;
-        let mut p = self.cov;
+        let mut m = self.s.mean;
+        let mut p = self.s.cov;
         gauss::rk4_moments(d, &mut m, &mut p, h, steps as usize, |ms, ps, dm, dp| {
             self.moments_rhs(ms, ps, u, dm, dp)
         });
@@ -190,14 +164,9 @@ impl<M: SdeJacobians> BayesFilter for Ekf<M> {
             return Err(FilterError::Numerical("predicted covariance lost symmetry"));
         }
         gauss::symmetrize(&mut p, d);
-        if !m[..d].iter().all(|v| v.is_finite()) || !gauss::is_psd(&p, d) {
-            return Err(FilterError::Numerical(
-                "predicted covariance is not positive semi-definite",
-            ));
-        }
-        self.mean = m;
-        self.cov = p;
-        self.t = t;
+        self.s
+            .accept(&m, &p, "predicted covariance is not positive semi-definite")?;
+        self.s.t = t;
         Ok(())
     }
 
@@ -209,38 +178,17 @@ impl<M: SdeJacobians> BayesFilter for Ekf<M> {
         let mut yhat = [0.0; MAX_OBS];
         let mut r = [0.0; MAX_OBS];
         let mut h: ObsMat = [0.0; MAX_OBS * MAX_STATE];
-        let mut std = [0.0; MAX_OBS];
-        self.model.obs_mean(&self.mean[..d], &mut yhat[..m]);
+        self.model.obs_mean(&self.s.mean[..d], &mut yhat[..m]);
         self.model
             .obs_residual(&meas.y[..m], &yhat[..m], &mut r[..m]);
-        self.model.obs_jacobian(&self.mean[..d], &mut h[..m * d]);
-        match meas.std {
-            Some(s) => std[..m].copy_from_slice(&s[..m]),
-            None => self.model.obs_std(&mut std[..m]),
-        }
-        let log_evidence = gauss::masked_joseph_update(
-            d,
-            m,
-            &mut self.mean,
-            &mut self.cov,
-            &h,
-            &r,
-            &std,
-            meas.mask,
-        )?;
-        Ok(UpdateInfo {
-            log_evidence,
-            ess: 1.0,
-            resampled: false,
-        })
+        self.model.obs_jacobian(&self.s.mean[..d], &mut h[..m * d]);
+        let std = measurement_std(&self.model, meas, m);
+        let log_evidence = self.s.joseph_update(m, &h, &r, &std, meas.mask)?;
+        Ok(gaussian_info(log_evidence))
     }
 
     fn belief(&self) -> Gaussian {
-        let d = self.dims.state;
-        let mut g = Gaussian::zeros(d);
-        g.mean_mut().copy_from_slice(&self.mean[..d]);
-        g.cov_mut().copy_from_slice(&self.cov[..d * d]);
-        g
+        self.s.belief()
     }
 }
 

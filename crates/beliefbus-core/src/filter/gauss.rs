@@ -1,21 +1,13 @@
-//! Shared machinery of the Gaussian filters (Kalman, EKF, UKF) and of the
-//! particle filter's prior: small dense linear algebra on column-major stack
-//! buffers (dimensions ≤ [`MAX_STATE`]/[`MAX_OBS`], so nothing allocates),
-//! prior validation, and the masked linear(ised) measurement update in
-//! Joseph form:
-//!
-//! ```text
-//! S = H P Hᵀ + R,   K = P Hᵀ S⁻¹,   m⁺ = m + K r,
-//! P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ
-//! log p(y) = −½ rᵀ S⁻¹ r − ½ log det S − (p/2) log 2π
-//! ```
-//!
-//! restricted to the p rows of the observation that a measurement's mask
-//! carries, with R = diag(σ²) from the measurement or the model.
+//! Shared numerics of the Gaussian filters (Kalman, EKF, UKF) and of the
+//! particle filter's prior: small dense products on column-major stack
+//! buffers (dimensions ≤ [`MAX_STATE`]/[`MAX_OBS`], so nothing allocates;
+//! the Cholesky factorisation is [`crate::math::linalg`]'s), prior
+//! validation, and RK4 on the moment equations. The belief state and the
+//! masked measurement update built on them are in `gauss_state`.
 
 use super::FilterError;
 use crate::belief::Gaussian;
-use crate::model::ObsMask;
+use crate::math::linalg::cholesky_psd;
 use crate::{MAX_OBS, MAX_STATE};
 
 /// A d × d scratch matrix.
@@ -79,102 +71,12 @@ pub(crate) fn asymmetry(p: &[f64], n: usize) -> f64 {
     }
 }
 
-/// In-place Cholesky factor L (lower; the strict upper part is zeroed) of a
-/// symmetric positive-definite n × n matrix. `Err` when a pivot is not
-/// positive (the matrix is then garbage).
-pub(crate) fn cholesky(a: &mut [f64], n: usize) -> Result<(), ()> {
-    for j in 0..n {
-        let mut d = a[j + j * n];
-        for k in 0..j {
-            d -= a[j + k * n] * a[j + k * n];
-        }
-        if !(d > 0.0) || !d.is_finite() {
-            return Err(());
-        }
-        let d = d.sqrt();
-        a[j + j * n] = d;
-        for i in (j + 1)..n {
-            let mut s = a[i + j * n];
-            for k in 0..j {
-                s -= a[i + k * n] * a[j + k * n];
-            }
-            a[i + j * n] = s / d;
-        }
-        for i in 0..j {
-            a[i + j * n] = 0.0;
-        }
-    }
-    Ok(())
-}
-
-/// Cholesky-like factor L with L Lᵀ = A of a symmetric positive
-/// *semi*-definite matrix: pivots below `tol · max diag` are treated as zero
-/// (their column of L is zero). `Err` on a clearly negative pivot.
-pub(crate) fn cholesky_psd(a: &mut [f64], n: usize) -> Result<(), ()> {
-    let scale = (0..n).map(|i| a[i + i * n].abs()).fold(0.0, f64::max);
-    let tol = 1e-12 * scale.max(f64::MIN_POSITIVE);
-    for j in 0..n {
-        let mut d = a[j + j * n];
-        for k in 0..j {
-            d -= a[j + k * n] * a[j + k * n];
-        }
-        if !d.is_finite() || d < -1e-9 * scale.max(f64::MIN_POSITIVE) {
-            return Err(());
-        }
-        if d <= tol {
-            for i in j..n {
-                a[i + j * n] = 0.0;
-            }
-        } else {
-            let d = d.sqrt();
-            a[j + j * n] = d;
-            for i in (j + 1)..n {
-                let mut s = a[i + j * n];
-                for k in 0..j {
-                    s -= a[i + k * n] * a[j + k * n];
-                }
-                a[i + j * n] = s / d;
-            }
-        }
-        for i in 0..j {
-            a[i + j * n] = 0.0;
-        }
-    }
-    Ok(())
-}
-
-/// Solve (L Lᵀ) X = B in place for B n × c, L from [`cholesky`].
-pub(crate) fn chol_solve(l: &[f64], n: usize, b: &mut [f64], c: usize) {
-    for col in 0..c {
-        let x = &mut b[col * n..(col + 1) * n];
-        for i in 0..n {
-            let mut s = x[i];
-            for k in 0..i {
-                s -= l[i + k * n] * x[k];
-            }
-            x[i] = s / l[i + i * n];
-        }
-        for i in (0..n).rev() {
-            let mut s = x[i];
-            for k in (i + 1)..n {
-                s -= l[k + i * n] * x[k];
-            }
-            x[i] = s / l[i + i * n];
-        }
-    }
-}
-
-/// log det(L Lᵀ) from a Cholesky factor.
-pub(crate) fn chol_log_det(l: &[f64], n: usize) -> f64 {
-    (0..n).map(|i| 2.0 * l[i + i * n].ln()).sum()
-}
-
 /// Whether the symmetric n × n matrix is finite and positive
 /// semi-definite (pivots down to −1e-9 of its scale count as zero).
 pub(crate) fn is_psd(p: &[f64], n: usize) -> bool {
     let mut l: Mat = [0.0; MAX_STATE * MAX_STATE];
     l[..n * n].copy_from_slice(&p[..n * n]);
-    p[..n * n].iter().all(|v| v.is_finite()) && cholesky_psd(&mut l, n).is_ok()
+    p[..n * n].iter().all(|v| v.is_finite()) && cholesky_psd(&mut l, n)
 }
 
 /// Check a prior for a model of state dimension `d`: right dimension,
@@ -195,8 +97,13 @@ pub fn check_prior(prior: &Gaussian, d: usize) -> Result<(), FilterError> {
     }
     let mut l: Mat = [0.0; MAX_STATE * MAX_STATE];
     l[..d * d].copy_from_slice(prior.cov());
-    cholesky_psd(&mut l, d)
-        .map_err(|_| FilterError::Numerical("prior covariance is not positive semi-definite"))
+    if cholesky_psd(&mut l, d) {
+        Ok(())
+    } else {
+        Err(FilterError::Numerical(
+            "prior covariance is not positive semi-definite",
+        ))
+    }
 }
 
 /// The lower factor L of a prior's covariance (L Lᵀ = P, semi-definite
@@ -205,115 +112,12 @@ pub(crate) fn prior_factor(prior: &Gaussian) -> Result<Mat, FilterError> {
     let d = prior.dim;
     let mut l: Mat = [0.0; MAX_STATE * MAX_STATE];
     l[..d * d].copy_from_slice(prior.cov());
-    cholesky_psd(&mut l, d)
-        .map_err(|_| FilterError::Numerical("prior covariance is not positive semi-definite"))?;
-    Ok(l)
-}
-
-/// Masked Joseph-form update of (mean, cov) of dimension d.
-///
-/// `h` is the full m × d observation matrix (Jacobian), `r` the full
-/// innovation y ⊖ ŷ (length m, already wrapped by the model), `std` the
-/// per-component σ (length m). Only the components in `mask` are used.
-/// Returns log p(y) of the masked components; on failure (S or P⁺ not
-/// positive definite, non-finite result) nothing is modified.
-pub(crate) fn masked_joseph_update(
-    d: usize,
-    m: usize,
-    mean: &mut [f64],
-    cov: &mut [f64],
-    h: &[f64],
-    r: &[f64],
-    std: &[f64],
-    mask: ObsMask,
-) -> Result<f64, FilterError> {
-    // Gather the p masked rows.
-    let mut hs: ObsMat = [0.0; MAX_OBS * MAX_STATE]; // p × d
-    let mut rs = [0.0; MAX_OBS];
-    let mut var = [0.0; MAX_OBS];
-    let mut p = 0;
-    let rows = mask.iter().take_while(|&i| i < m);
-    let mut idx = [0usize; MAX_OBS];
-    for i in rows {
-        idx[p] = i;
-        p += 1;
-    }
-    if p == 0 {
-        return Ok(0.0);
-    }
-    for (a, &i) in idx[..p].iter().enumerate() {
-        for j in 0..d {
-            hs[a + j * p] = h[i + j * m];
-        }
-        rs[a] = r[i];
-        var[a] = std[i] * std[i];
-    }
-    // PHᵀ (d × p) and S = H PHᵀ + R (p × p).
-    let mut pht: ObsMat = [0.0; MAX_OBS * MAX_STATE];
-    mul_bt(cov, d, d, &hs, p, &mut pht);
-    let mut s = [0.0; MAX_OBS * MAX_OBS];
-    mul(&hs, p, d, &pht, p, &mut s);
-    for a in 0..p {
-        s[a + a * p] += var[a];
-    }
-    symmetrize(&mut s, p);
-    let mut ls = s;
-    cholesky(&mut ls, p).map_err(|_| FilterError::Numerical("innovation covariance not PD"))?;
-    // Kᵀ = S⁻¹ (PHᵀ)ᵀ  (p × d).
-    let mut kt: ObsMat = [0.0; MAX_OBS * MAX_STATE];
-    for a in 0..p {
-        for j in 0..d {
-            kt[a + j * p] = pht[j + a * d];
-        }
-    }
-    chol_solve(&ls, p, &mut kt, d);
-    // Evidence.
-    let mut z = rs;
-    chol_solve(&ls, p, &mut z, 1);
-    let quad: f64 = (0..p).map(|a| rs[a] * z[a]).sum();
-    let log_ev = -0.5 * quad - 0.5 * chol_log_det(&ls, p) - p as f64 * HALF_LOG_2PI;
-    // m⁺ = m + K r.
-    let mut new_mean = [0.0; MAX_STATE];
-    for j in 0..d {
-        let mut v = mean[j];
-        for a in 0..p {
-            v += kt[a + j * p] * rs[a];
-        }
-        new_mean[j] = v;
-    }
-    // Joseph form: (I − KH) P (I − KH)ᵀ + K R Kᵀ.
-    let mut ikh: Mat = [0.0; MAX_STATE * MAX_STATE];
-    for c in 0..d {
-        for rr in 0..d {
-            let mut v = if rr == c { 1.0 } else { 0.0 };
-            for a in 0..p {
-                v -= kt[a + rr * p] * hs[a + c * p];
-            }
-            ikh[rr + c * d] = v;
-        }
-    }
-    let mut tmp: Mat = [0.0; MAX_STATE * MAX_STATE];
-    mul(&ikh, d, d, cov, d, &mut tmp);
-    let mut new_cov: Mat = [0.0; MAX_STATE * MAX_STATE];
-    mul_bt(&tmp, d, d, &ikh, d, &mut new_cov);
-    for c in 0..d {
-        for rr in 0..d {
-            let mut v = 0.0;
-            for a in 0..p {
-                v += kt[a + rr * p] * var[a] * kt[a + c * p];
-            }
-            new_cov[rr + c * d] += v;
-        }
-    }
-    symmetrize(&mut new_cov, d);
-    if !new_mean[..d].iter().all(|v| v.is_finite()) || !is_psd(&new_cov, d) {
+    if !cholesky_psd(&mut l, d) {
         return Err(FilterError::Numerical(
-            "updated covariance is not positive semi-definite",
+            "prior covariance is not positive semi-definite",
         ));
     }
-    mean[..d].copy_from_slice(&new_mean[..d]);
-    cov[..d * d].copy_from_slice(&new_cov[..d * d]);
-    Ok(log_ev)
+    Ok(l)
 }
 
 /// Classical RK4 on the moment equations ṁ = f(m), Ṗ = A P + P Aᵀ + F Fᵀ
@@ -368,51 +172,6 @@ pub fn rk4_moments(
 mod tests {
     use super::*;
     use nalgebra::DMatrix;
-
-    fn spd(n: usize, seed: u64) -> DMatrix<f64> {
-        let mut rng = crate::rng::stream(seed, 0);
-        use rand::RngExt;
-        let a = DMatrix::from_fn(n, n, |_, _| rng.random_range(-1.0..1.0));
-        &a * a.transpose() + DMatrix::identity(n, n) * 0.5
-    }
-
-    #[test]
-    fn cholesky_and_solve_match_nalgebra() {
-        for n in 1..=MAX_STATE {
-            let a = spd(n, n as u64);
-            let mut l = [0.0; 64];
-            l[..n * n].copy_from_slice(a.as_slice());
-            cholesky(&mut l, n).unwrap();
-            let ln = a.clone().cholesky().unwrap().l();
-            for (x, y) in l[..n * n].iter().zip(ln.as_slice()) {
-                assert!((x - y).abs() < 1e-12);
-            }
-            let b = DMatrix::from_fn(n, 2, |i, j| (i + 3 * j) as f64 - 1.5);
-            let mut x = [0.0; 16];
-            x[..2 * n].copy_from_slice(b.as_slice());
-            chol_solve(&l, n, &mut x, 2);
-            let xn = a.clone().lu().solve(&b).unwrap();
-            for (p, q) in x[..2 * n].iter().zip(xn.as_slice()) {
-                assert!((p - q).abs() < 1e-10);
-            }
-            assert!((chol_log_det(&l, n) - a.determinant().ln()).abs() < 1e-10);
-        }
-    }
-
-    #[test]
-    fn semidefinite_factor_reproduces_the_matrix() {
-        // rank-1 PSD matrix v vᵀ.
-        let v = DMatrix::from_column_slice(3, 1, &[1.0, -2.0, 0.5]);
-        let a = &v * v.transpose();
-        let mut l = [0.0; 64];
-        l[..9].copy_from_slice(a.as_slice());
-        assert!(cholesky(&mut l.clone(), 3).is_err());
-        cholesky_psd(&mut l, 3).unwrap();
-        let lm = DMatrix::from_column_slice(3, 3, &l[..9]);
-        assert!((&lm * lm.transpose() - a).abs().max() < 1e-12);
-        let mut neg = [1.0, 0.0, 0.0, -1.0];
-        assert!(cholesky_psd(&mut neg, 2).is_err());
-    }
 
     #[test]
     fn products_match_nalgebra() {

@@ -16,7 +16,8 @@
 //! (allocating; this filter is a reference, not a real-time backend).
 
 use super::gauss::{self, Mat, ObsMat};
-use super::{check_measurement, check_predict, BayesFilter, FilterError, UpdateInfo};
+use super::gauss_state::{gaussian_info, predict_span, reset_or_keep, GaussState};
+use super::{check_measurement, BayesFilter, FilterError, UpdateInfo};
 use crate::belief::Gaussian;
 use crate::model::linear::LinearSde;
 use crate::model::{Dims, Measurement, SdeModel};
@@ -30,9 +31,7 @@ const DT_REL_TOL: f64 = 1e-9;
 pub struct Kalman {
     model: LinearSde,
     dims: Dims,
-    t: f64,
-    mean: [f64; MAX_STATE],
-    cov: Mat,
+    s: GaussState,
     /// Observation matrix C (m × d) and σ, copied once.
     c: ObsMat,
     obs_std: [f64; MAX_OBS],
@@ -54,29 +53,22 @@ impl Kalman {
                 expected: MAX_STATE,
             });
         }
-        if !t0.is_finite() {
-            return Err(FilterError::NonFinite("time"));
-        }
-        gauss::check_prior(prior, dims.state)?;
+        let s = GaussState::new(dims.state, prior, t0)?;
         let mut c = [0.0; MAX_OBS * MAX_STATE];
         c[..dims.obs * dims.state].copy_from_slice(model.c.as_slice());
         let mut obs_std = [0.0; MAX_OBS];
         model.obs_std(&mut obs_std[..dims.obs]);
-        let mut k = Self {
+        Ok(Self {
             model,
             dims,
-            t: t0,
-            mean: [0.0; MAX_STATE],
-            cov: [0.0; MAX_STATE * MAX_STATE],
+            s,
             c,
             obs_std,
             cached_dt: f64::NAN,
             ad: [0.0; MAX_STATE * MAX_STATE],
             bd: [0.0; MAX_STATE * MAX_CONTROL],
             qd: [0.0; MAX_STATE * MAX_STATE],
-        };
-        k.set_belief(prior);
-        Ok(k)
+        })
     }
 
     /// The model being filtered.
@@ -86,20 +78,7 @@ impl Kalman {
 
     /// Restart from `prior` at `t`, rejecting an invalid prior.
     pub fn try_reset(&mut self, t: f64, prior: &Gaussian) -> Result<(), FilterError> {
-        if !t.is_finite() {
-            return Err(FilterError::NonFinite("time"));
-        }
-        gauss::check_prior(prior, self.dims.state)?;
-        self.t = t;
-        self.set_belief(prior);
-        Ok(())
-    }
-
-    fn set_belief(&mut self, prior: &Gaussian) {
-        let d = self.dims.state;
-        self.mean[..d].copy_from_slice(prior.mean());
-        self.cov[..d * d].copy_from_slice(prior.cov());
-        gauss::symmetrize(&mut self.cov, d);
+        self.s.try_reset(t, prior)
     }
 
     fn ensure_discretized(&mut self, dt: f64) {
@@ -127,20 +106,16 @@ impl BayesFilter for Kalman {
         self.dims
     }
     fn time(&self) -> f64 {
-        self.t
+        self.s.t
     }
     fn reset(&mut self, t: f64, prior: &Gaussian) {
-        if let Err(e) = self.try_reset(t, prior) {
-            tracing::warn!("kalman: reset rejected ({e}); belief kept");
-        }
+        reset_or_keep("kalman", self.try_reset(t, prior));
     }
 
     fn predict(&mut self, t: f64, u: &[f64]) -> Result<(), FilterError> {
-        check_predict(self.t, t, u, self.dims)?;
-        let dt = t - self.t;
-        if dt == 0.0 {
+        let Some(dt) = predict_span(self.s.t, t, u, self.dims)? else {
             return Ok(());
-        }
+        };
         let Dims {
             state: d,
             control: c,
@@ -148,7 +123,7 @@ impl BayesFilter for Kalman {
         } = self.dims;
         self.ensure_discretized(dt);
         let mut m = [0.0; MAX_STATE];
-        gauss::mul(&self.ad, d, d, &self.mean, 1, &mut m);
+        gauss::mul(&self.ad, d, d, &self.s.mean, 1, &mut m);
         for i in 0..d {
             for j in 0..c {
                 m[i] += self.bd[i + j * d] * u[j];
@@ -156,7 +131,7 @@ impl BayesFilter for Kalman {
         }
         let mut tmp: Mat = [0.0; MAX_STATE * MAX_STATE];
         let mut p: Mat = [0.0; MAX_STATE * MAX_STATE];
-        gauss::mul(&self.ad, d, d, &self.cov, d, &mut tmp);
+        gauss::mul(&self.ad, d, d, &self.s.cov, d, &mut tmp);
         gauss::mul_bt(&tmp, d, d, &self.ad, d, &mut p);
         for i in 0..d * d {
             p[i] += self.qd[i];
@@ -165,9 +140,9 @@ impl BayesFilter for Kalman {
         if !m[..d].iter().chain(&p[..d * d]).all(|v| v.is_finite()) {
             return Err(FilterError::Numerical("prediction is not finite"));
         }
-        self.mean = m;
-        self.cov = p;
-        self.t = t;
+        self.s.mean = m;
+        self.s.cov = p;
+        self.s.t = t;
         Ok(())
     }
 
@@ -177,34 +152,17 @@ impl BayesFilter for Kalman {
             state: d, obs: m, ..
         } = self.dims;
         let mut yhat = [0.0; MAX_OBS];
-        self.model.obs_mean(&self.mean[..d], &mut yhat[..m]);
+        self.model.obs_mean(&self.s.mean[..d], &mut yhat[..m]);
         let mut r = [0.0; MAX_OBS];
         self.model
             .obs_residual(&meas.y[..m], &yhat[..m], &mut r[..m]);
         let std = meas.std.unwrap_or(&self.obs_std[..m]);
-        let log_evidence = gauss::masked_joseph_update(
-            d,
-            m,
-            &mut self.mean,
-            &mut self.cov,
-            &self.c,
-            &r,
-            std,
-            meas.mask,
-        )?;
-        Ok(UpdateInfo {
-            log_evidence,
-            ess: 1.0,
-            resampled: false,
-        })
+        let log_evidence = self.s.joseph_update(m, &self.c, &r, std, meas.mask)?;
+        Ok(gaussian_info(log_evidence))
     }
 
     fn belief(&self) -> Gaussian {
-        let d = self.dims.state;
-        let mut g = Gaussian::zeros(d);
-        g.mean_mut().copy_from_slice(&self.mean[..d]);
-        g.cov_mut().copy_from_slice(&self.cov[..d * d]);
-        g
+        self.s.belief()
     }
 }
 

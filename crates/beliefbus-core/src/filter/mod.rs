@@ -17,6 +17,7 @@ pub mod control_transport;
 pub mod decoder;
 pub mod ekf;
 pub mod gauss;
+mod gauss_state;
 pub mod kalman;
 pub mod layered_decoder;
 pub mod live_chain;

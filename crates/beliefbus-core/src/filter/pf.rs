@@ -21,9 +21,11 @@
 
 use super::build::{self, BuildError, ConfigError};
 use super::gauss::{self, HALF_LOG_2PI};
-use super::resample::{self, Scheme};
-use super::{check_measurement, check_predict, BayesFilter, FilterError, UpdateInfo};
+use super::gauss_state::{predict_span, reset_or_keep};
+use super::resample::Scheme;
+use super::{check_measurement, BayesFilter, FilterError, UpdateInfo};
 use crate::belief::Gaussian;
+use crate::math::weights;
 use crate::model::{em_step, Dims, Measurement, SdeModel};
 use crate::rng::{self, SimRng};
 use crate::{MAX_OBS, MAX_STATE};
@@ -221,7 +223,8 @@ impl<M: SdeModel> Pf<M> {
     pub fn weights(&self) -> &[f64] {
         &self.w
     }
-    /// Effective sample size of the current weights.
+    /// Effective sample size 1/Σ W² of the current normalised weights
+    /// (kept from the last normalisation, [`weights::normalise`]).
     pub fn ess(&self) -> f64 {
         self.ess
     }
@@ -263,17 +266,13 @@ impl<M: SdeModel> BayesFilter for Pf<M> {
         self.t
     }
     fn reset(&mut self, t: f64, prior: &Gaussian) {
-        if let Err(e) = self.try_reset(t, prior) {
-            tracing::warn!("pf: reset rejected ({e}); belief kept");
-        }
+        reset_or_keep("pf", self.try_reset(t, prior));
     }
 
     fn predict(&mut self, t: f64, u: &[f64]) -> Result<(), FilterError> {
-        check_predict(self.t, t, u, self.dims)?;
-        let dur = t - self.t;
-        if dur == 0.0 {
+        let Some(dur) = predict_span(self.t, t, u, self.dims)? else {
             return Ok(());
-        }
+        };
         let steps = (dur / self.cfg.max_dt).ceil().max(1.0);
         let h = dur / steps;
         let steps = steps as usize;
@@ -314,7 +313,7 @@ impl<M: SdeModel> BayesFilter for Pf<M> {
                     f64::NEG_INFINITY
                 };
             }
-            let s = resample::normalize(&self.lw_new, &mut self.w)
+            let s = weights::normalise(&self.lw_new, &mut self.w)
                 .ok_or(FilterError::Numerical("every particle diverged"))?;
             for (lw, &l) in self.lw.iter_mut().zip(&self.lw_new) {
                 *lw = l - s.log_sum;
@@ -371,7 +370,7 @@ impl<M: SdeModel> BayesFilter for Pf<M> {
                 self.lw[i] + ll
             };
         }
-        let s = resample::normalize(&self.lw_new, &mut self.w).ok_or(FilterError::Degenerate)?;
+        let s = weights::normalise(&self.lw_new, &mut self.w).ok_or(FilterError::Degenerate)?;
         for (lw, &l) in self.lw.iter_mut().zip(&self.lw_new) {
             *lw = l - s.log_sum;
         }

@@ -1,12 +1,6 @@
-//! Importance weights and resampling, in one place.
-//!
-//! Weights live in the log domain (`lw`); [`normalize`] turns them into
-//! normalised weights with the log-sum-exp trick and returns the log of
-//! their sum and the effective sample size
-//!
-//! ```text
-//! L = log Σ_i exp(lw_i),   W_i = exp(lw_i − L),   ESS = 1 / Σ_i W_i²
-//! ```
+//! Resampling schemes. The weights they read come from
+//! [`crate::math::weights`] (log-sum-exp normalisation and the effective
+//! sample size, the crate's one copy).
 //!
 //! Every scheme has one signature (the `particles` habit, `A = scheme(W, M)`):
 //! it reads weights `w` (non-negative, any positive sum) and writes
@@ -65,59 +59,6 @@ impl Scheme {
             Scheme::Multinomial => "multinomial",
             Scheme::Residual => "residual",
         }
-    }
-}
-
-/// Summary of a set of log weights.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct WeightSummary {
-    /// log Σ exp(lw_i).
-    pub log_sum: f64,
-    /// Effective sample size 1/Σ W_i² of the normalised weights.
-    pub ess: f64,
-}
-
-/// log Σ exp(lw_i), stable for any finite maximum; −∞ when every weight is
-/// −∞ (or the slice is empty); NaN if any lw is NaN.
-pub fn log_sum_exp(lw: &[f64]) -> f64 {
-    let mx = lw.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    if lw.iter().any(|v| v.is_nan()) {
-        return f64::NAN;
-    }
-    if mx.is_infinite() {
-        return mx;
-    }
-    mx + lw.iter().map(|&v| (v - mx).exp()).sum::<f64>().ln()
-}
-
-/// Normalise log weights `lw` into `w` (same length). Returns `None` — and
-/// leaves `w` untouched — when the weights are degenerate (all −∞, a NaN or
-/// a +∞).
-pub fn normalize(lw: &[f64], w: &mut [f64]) -> Option<WeightSummary> {
-    debug_assert_eq!(lw.len(), w.len());
-    let log_sum = log_sum_exp(lw);
-    if !log_sum.is_finite() {
-        return None;
-    }
-    let mut sq = 0.0;
-    for (wi, &l) in w.iter_mut().zip(lw) {
-        let v = (l - log_sum).exp();
-        *wi = v;
-        sq += v * v;
-    }
-    Some(WeightSummary {
-        log_sum,
-        ess: 1.0 / sq,
-    })
-}
-
-/// ESS (Σ w)² / Σ w² of unnormalised non-negative weights.
-pub fn ess(w: &[f64]) -> f64 {
-    let (s, sq) = w.iter().fold((0.0, 0.0), |(s, sq), &v| (s + v, sq + v * v));
-    if sq > 0.0 {
-        s * s / sq
-    } else {
-        0.0
     }
 }
 
@@ -302,35 +243,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn ess_and_normalisation_are_exact_on_known_weights() {
-        // W = (1, 1, 2, 4)/8: ESS = 1/(1/64 + 1/64 + 4/64 + 16/64) = 64/22.
-        let base = [1.0f64, 1.0, 2.0, 4.0];
-        for shift in [0.0, -1000.0, 700.0] {
-            let lw: Vec<f64> = base.iter().map(|v| v.ln() + shift).collect();
-            let mut w = [0.0; 4];
-            let s = normalize(&lw, &mut w).unwrap();
-            assert!((s.ess - 64.0 / 22.0).abs() < 1e-12, "{}", s.ess);
-            assert!((s.log_sum - (8.0f64.ln() + shift)).abs() < 1e-9);
-            for i in 0..4 {
-                assert!((w[i] - base[i] / 8.0).abs() < 1e-12);
-            }
-        }
-        assert!((ess(&base) - 64.0 / 22.0).abs() < 1e-12);
-        // Equal weights: ESS = N; one surviving weight: ESS = 1.
-        let mut w = [0.0; 5];
-        assert!((normalize(&[3.0; 5], &mut w).unwrap().ess - 5.0).abs() < 1e-12);
-        let lw = [f64::NEG_INFINITY, 2.0, f64::NEG_INFINITY];
-        let mut w = [0.0; 3];
-        assert_eq!(normalize(&lw, &mut w).unwrap().ess, 1.0);
-        assert_eq!(w, [0.0, 1.0, 0.0]);
-    }
-
-    #[test]
     fn degenerate_weights_are_reported() {
-        let mut w = [7.0; 3];
-        assert!(normalize(&[f64::NEG_INFINITY; 3], &mut w).is_none());
-        assert!(normalize(&[0.0, f64::NAN, 0.0], &mut w).is_none());
-        assert_eq!(w, [7.0; 3]);
         let mut rng = crate::rng::stream(1, 1);
         let mut a = [0usize; 3];
         for s in [

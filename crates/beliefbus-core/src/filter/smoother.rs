@@ -37,6 +37,9 @@ pub struct Smoothed {
 /// Forward–backward over the observations `(t_k, y_k)` (times increasing,
 /// after `t0`), from the prior mass `prior` on the chain `view` with time
 /// step `delta` (≤ every holding time). `ys` is K × m.
+// One function (~130 lines): the forward pass stores every α_k that the
+// backward pass multiplies in place; both passes and the marginal output
+// share those buffers, and the two passes read as the thesis' recursions.
 pub fn smooth<M: SdeModel>(
     model: &M,
     view: &ChainView,

@@ -33,9 +33,14 @@
 //! refused with [`FilterError::Numerical`]; the previous belief is kept.
 
 use super::build::{self, BuildError, ConfigError};
-use super::gauss::{self, Mat, ObsMat, HALF_LOG_2PI};
-use super::{check_measurement, check_predict, BayesFilter, FilterError, UpdateInfo};
+use super::gauss::{self, Mat, ObsMat};
+use super::gauss_state::{
+    gain_and_evidence, gain_step, gaussian_info, masked_rows, measurement_std, predict_span,
+    reset_or_keep, GaussState,
+};
+use super::{check_measurement, BayesFilter, FilterError, UpdateInfo};
 use crate::belief::Gaussian;
+use crate::math::linalg;
 use crate::model::{Dims, Measurement, SdeModel};
 use crate::{MAX_NOISE, MAX_OBS, MAX_STATE};
 use serde::{Deserialize, Serialize};
@@ -163,9 +168,7 @@ pub struct Ukf<M: SdeModel> {
     cfg: UkfConfig,
     dims: Dims,
     w: Weights,
-    t: f64,
-    mean: [f64; MAX_STATE],
-    cov: Mat,
+    s: GaussState,
 }
 
 impl<M: SdeModel> Ukf<M> {
@@ -179,44 +182,23 @@ impl<M: SdeModel> Ukf<M> {
         let dims = model.dims();
         build::check_dims(dims)?;
         cfg.validate(dims.state)?;
-        gauss::check_prior(prior, dims.state)?;
-        if !t0.is_finite() {
-            return Err(FilterError::NonFinite("time").into());
-        }
-        let mut u = Self {
+        Ok(Self {
+            s: GaussState::new(dims.state, prior, t0)?,
             w: Weights::new(cfg, dims.state),
             model,
             cfg: cfg.clone(),
             dims,
-            t: t0,
-            mean: [0.0; MAX_STATE],
-            cov: [0.0; MAX_STATE * MAX_STATE],
-        };
-        u.set_belief(prior);
-        Ok(u)
+        })
     }
 
     /// Restart from `prior` at `t`, rejecting an invalid prior.
     pub fn try_reset(&mut self, t: f64, prior: &Gaussian) -> Result<(), FilterError> {
-        if !t.is_finite() {
-            return Err(FilterError::NonFinite("time"));
-        }
-        gauss::check_prior(prior, self.dims.state)?;
-        self.t = t;
-        self.set_belief(prior);
-        Ok(())
+        self.s.try_reset(t, prior)
     }
 
     /// The model.
     pub fn model(&self) -> &M {
         &self.model
-    }
-
-    fn set_belief(&mut self, prior: &Gaussian) {
-        let d = self.dims.state;
-        self.mean[..d].copy_from_slice(prior.mean());
-        self.cov[..d * d].copy_from_slice(prior.cov());
-        gauss::symmetrize(&mut self.cov, d);
     }
 
     fn n_sigma(&self) -> usize {
@@ -228,8 +210,11 @@ impl<M: SdeModel> Ukf<M> {
         let n = self.dims.state;
         let mut l: Mat = [0.0; MAX_STATE * MAX_STATE];
         l[..n * n].copy_from_slice(&p[..n * n]);
-        gauss::cholesky_psd(&mut l, n)
-            .map_err(|_| FilterError::Numerical("covariance is not positive semi-definite"))?;
+        if !linalg::cholesky_psd(&mut l, n) {
+            return Err(FilterError::Numerical(
+                "covariance is not positive semi-definite",
+            ));
+        }
         chi[..n].copy_from_slice(&m[..n]);
         for j in 0..n {
             for r in 0..n {
@@ -308,26 +293,22 @@ impl<M: SdeModel> BayesFilter for Ukf<M> {
         self.dims
     }
     fn time(&self) -> f64 {
-        self.t
+        self.s.t
     }
     fn reset(&mut self, t: f64, prior: &Gaussian) {
-        if let Err(e) = self.try_reset(t, prior) {
-            tracing::warn!("ukf: reset rejected ({e}); belief kept");
-        }
+        reset_or_keep("ukf", self.try_reset(t, prior));
     }
 
     fn predict(&mut self, t: f64, u: &[f64]) -> Result<(), FilterError> {
-        check_predict(self.t, t, u, self.dims)?;
-        let dur = t - self.t;
-        if dur == 0.0 {
+        let Some(dur) = predict_span(self.s.t, t, u, self.dims)? else {
             return Ok(());
-        }
+        };
         let n = self.dims.state;
         let count = self.n_sigma();
         let steps = (dur / self.cfg.max_dt).ceil().max(1.0);
         let h = dur / steps;
-        let mut m = self.mean;
-        let mut p = self.cov;
+        let mut m = self.s.mean;
+        let mut p = self.s.cov;
         let mut chi: Sigma = [0.0; MAX_SIGMA * MAX_STATE];
         for _ in 0..steps as usize {
             self.add_half_noise(&m, &mut p, h);
@@ -339,14 +320,9 @@ impl<M: SdeModel> BayesFilter for Ukf<M> {
             self.add_half_noise(&m, &mut p, h);
             gauss::symmetrize(&mut p, n);
         }
-        if !m[..n].iter().all(|v| v.is_finite()) || !gauss::is_psd(&p, n) {
-            return Err(FilterError::Numerical(
-                "predicted covariance is not positive semi-definite",
-            ));
-        }
-        self.mean = m;
-        self.cov = p;
-        self.t = t;
+        self.s
+            .accept(&m, &p, "predicted covariance is not positive semi-definite")?;
+        self.s.t = t;
         Ok(())
     }
 
@@ -355,22 +331,13 @@ impl<M: SdeModel> BayesFilter for Ukf<M> {
         let Dims {
             state: n, obs: mo, ..
         } = self.dims;
-        let mut idx = [0usize; MAX_OBS];
-        let mut p = 0;
-        for j in meas.mask.iter().take_while(|&j| j < mo) {
-            idx[p] = j;
-            p += 1;
-        }
+        let (idx, p) = masked_rows(meas.mask, mo);
         if p == 0 {
-            return Ok(UpdateInfo {
-                log_evidence: 0.0,
-                ess: 1.0,
-                resampled: false,
-            });
+            return Ok(gaussian_info(0.0));
         }
         let count = self.n_sigma();
         let mut chi: Sigma = [0.0; MAX_SIGMA * MAX_STATE];
-        self.sigma_points(&self.mean, &self.cov, &mut chi)?;
+        self.sigma_points(&self.s.mean, &self.s.cov, &mut chi)?;
         // γ_i = g(χ_i), point-major count × mo.
         let mut gam = [0.0; MAX_SIGMA * MAX_OBS];
         for i in 0..count {
@@ -388,11 +355,7 @@ impl<M: SdeModel> BayesFilter for Ukf<M> {
                 yhat[j] += self.w.wm(i) * r[j];
             }
         }
-        let mut std = [0.0; MAX_OBS];
-        match meas.std {
-            Some(s) => std[..mo].copy_from_slice(&s[..mo]),
-            None => self.model.obs_std(&mut std[..mo]),
-        }
+        let std = measurement_std(&self.model, meas, mo);
         // S (p × p) and C (n × p) on the masked components.
         let mut s = [0.0; MAX_OBS * MAX_OBS];
         let mut c: ObsMat = [0.0; MAX_OBS * MAX_STATE];
@@ -406,17 +369,13 @@ impl<M: SdeModel> BayesFilter for Ukf<M> {
                     s[a + b * p] += r[idx[a]] * rb;
                 }
                 for row in 0..n {
-                    c[row + b * n] += (chi[i * n + row] - self.mean[row]) * rb;
+                    c[row + b * n] += (chi[i * n + row] - self.s.mean[row]) * rb;
                 }
             }
         }
         for a in 0..p {
             s[a + a * p] += std[idx[a]] * std[idx[a]];
         }
-        gauss::symmetrize(&mut s, p);
-        let mut ls = s;
-        gauss::cholesky(&mut ls, p)
-            .map_err(|_| FilterError::Numerical("innovation covariance not PD"))?;
         // Innovation y ⊖ ŷ on the mask.
         self.model
             .obs_residual(&meas.y[..mo], &yhat[..mo], &mut r[..mo]);
@@ -424,27 +383,10 @@ impl<M: SdeModel> BayesFilter for Ukf<M> {
         for a in 0..p {
             rs[a] = r[idx[a]];
         }
-        let mut z = rs;
-        gauss::chol_solve(&ls, p, &mut z, 1);
-        let quad: f64 = (0..p).map(|a| rs[a] * z[a]).sum();
-        let log_evidence =
-            -0.5 * quad - 0.5 * gauss::chol_log_det(&ls, p) - p as f64 * HALF_LOG_2PI;
-        // Kᵀ = S⁻¹ Cᵀ (p × n).
-        let mut kt: ObsMat = [0.0; MAX_OBS * MAX_STATE];
-        for a in 0..p {
-            for row in 0..n {
-                kt[a + row * p] = c[row + a * n];
-            }
-        }
-        gauss::chol_solve(&ls, p, &mut kt, n);
-        let mut m = self.mean;
-        for row in 0..n {
-            for a in 0..p {
-                m[row] += kt[a + row * p] * rs[a];
-            }
-        }
+        let (kt, log_evidence) = gain_and_evidence(&mut s, &c, n, p, &rs)?;
+        let m = gain_step(&self.s.mean, &kt, &rs, n, p);
         // P − K S Kᵀ = P − C Kᵀ.
-        let mut pn = self.cov;
+        let mut pn = self.s.cov;
         for col in 0..n {
             for row in 0..n {
                 let mut v = 0.0;
@@ -455,26 +397,13 @@ impl<M: SdeModel> BayesFilter for Ukf<M> {
             }
         }
         gauss::symmetrize(&mut pn, n);
-        if !m[..n].iter().all(|v| v.is_finite()) || !gauss::is_psd(&pn, n) {
-            return Err(FilterError::Numerical(
-                "updated covariance is not positive semi-definite",
-            ));
-        }
-        self.mean = m;
-        self.cov = pn;
-        Ok(UpdateInfo {
-            log_evidence,
-            ess: 1.0,
-            resampled: false,
-        })
+        self.s
+            .accept(&m, &pn, "updated covariance is not positive semi-definite")?;
+        Ok(gaussian_info(log_evidence))
     }
 
     fn belief(&self) -> Gaussian {
-        let d = self.dims.state;
-        let mut g = Gaussian::zeros(d);
-        g.mean_mut().copy_from_slice(&self.mean[..d]);
-        g.cov_mut().copy_from_slice(&self.cov[..d * d]);
-        g
+        self.s.belief()
     }
 }
 

@@ -6,3 +6,6 @@
 pub mod linalg;
 pub mod truncnorm;
 pub mod weights;
+
+#[cfg(test)]
+mod timing_tests;

@@ -11,6 +11,9 @@
 //! j + kd, lives at `data[j·(kd+1) + (i − j)]`, so a column of the band is
 //! contiguous. The buffer is sized once for a maximal dimension; `resize`
 //! reuses it for a smaller one (a shrinking horizon) without allocating.
+//!
+//! This is not a second copy of the dense Cholesky in `math::linalg`: it
+//! works on band storage and never touches the zeros outside the band.
 
 /// The matrix was not positive definite: pivot `0` was not positive.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]

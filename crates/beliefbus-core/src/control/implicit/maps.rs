@@ -334,7 +334,7 @@ mod tests {
         }
         let est = |lw: &[f64]| {
             let mut w = vec![0.0; lw.len()];
-            weights::normalise(lw, &mut w);
+            weights::normalise(lw, &mut w).expect("finite weights");
             let mean: f64 = w.iter().zip(&x1sq).map(|(w, v)| w * v).sum();
             let zhat = (-r.phi + weights::log_mean_exp(lw)).exp() * 2.0 * std::f64::consts::PI;
             (mean, zhat)
@@ -357,7 +357,7 @@ mod tests {
             x1sq_lin.push(x[0] * x[0]);
         }
         let mut w = vec![0.0; m];
-        weights::normalise(&lw_lin, &mut w);
+        weights::normalise(&lw_lin, &mut w).expect("finite weights");
         let m2_l: f64 = w.iter().zip(&x1sq_lin).map(|(w, v)| w * v).sum();
         let z_l = (-r.phi + weights::log_mean_exp(&lw_lin)).exp() * 2.0 * std::f64::consts::PI;
         assert!(

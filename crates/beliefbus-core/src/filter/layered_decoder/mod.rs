@@ -57,107 +57,22 @@
 //! Ties: the first maximum in slot order wins (deterministic). Back-pointers
 //! are one u32 per state and layer.
 
-use crate::belief::Gaussian;
+mod layer;
+mod moments;
+#[cfg(test)]
+mod tests;
+
+pub use layer::Layer;
+pub use moments::propagate_gaussian;
+
 use crate::chain::index::SpatialIndex;
-use crate::chain::linalg::{cholesky, forward_sub};
-use crate::chain::Sampler;
 use crate::filter::decoder::{Decoded, ObsPath};
 use crate::filter::FilterError;
-use crate::model::{fd_step, Bounds, SdeModel};
-use crate::rng::SimRng;
-use crate::{MAX_NOISE, MAX_STATE};
+use crate::math::linalg::{cholesky, forward_sub};
+use crate::model::SdeModel;
+use crate::MAX_STATE;
 
 const LN_2PI: f64 = 1.837_877_066_409_345_3;
-
-/// States of one time layer with the log of their cell volumes.
-#[derive(Clone, Debug)]
-pub struct Layer {
-    pub dim: usize,
-    /// Flat n × dim.
-    pub states: Vec<f64>,
-    /// log v(x) for every state (ln of 1/(n ρ(x)), ρ the sampling density).
-    pub log_vol: Vec<f64>,
-}
-
-impl Layer {
-    /// The single known state `x` (the root (t₀, x₀) of Alg. 3.2).
-    pub fn point(x: &[f64]) -> Self {
-        Self {
-            dim: x.len(),
-            states: x.to_vec(),
-            log_vol: vec![0.0],
-        }
-    }
-
-    /// `n` states uniform on `bounds`: v = μ(S)/n.
-    pub fn uniform(bounds: &Bounds, n: usize, rng: &mut SimRng) -> Self {
-        let states = Sampler::Uniform.sample_many(bounds, n, rng);
-        let lv = (bounds.volume() / n as f64).ln();
-        Self {
-            dim: bounds.dim(),
-            states,
-            log_vol: vec![lv; n],
-        }
-    }
-
-    /// `n` states from the mixture (1 − u) N(m, κ² P) + u Unif(S) of
-    /// [`Sampler::around`]; v(x) = 1/(n ρ(x)) with the mixture's density
-    /// (the Gaussian part's truncation to S is ignored: its mass outside S
-    /// is negligible when the belief lies well inside S, and it only scales
-    /// v near the boundary). Fails when the inflated covariance is not
-    /// positive definite or u ∉ [0, 1].
-    pub fn around(
-        belief: &Gaussian,
-        inflate: f64,
-        uniform_fraction: f64,
-        bounds: &Bounds,
-        n: usize,
-        rng: &mut SimRng,
-    ) -> Result<Self, FilterError> {
-        let sampler = Sampler::around(belief, inflate, uniform_fraction)
-            .ok_or(FilterError::Numerical("belief covariance for sampling"))?;
-        let states = sampler.sample_many(bounds, n, rng);
-        let d = belief.dim;
-        let mut chol = [0.0; MAX_STATE * MAX_STATE];
-        for (c, v) in chol[..d * d].iter_mut().zip(belief.cov()) {
-            *c = v * inflate * inflate;
-        }
-        cholesky(&mut chol[..d * d], d);
-        let log_det: f64 = (0..d).map(|i| chol[i + i * d].ln()).sum::<f64>();
-        let u_dens = uniform_fraction / bounds.volume();
-        let mut r = [0.0; MAX_STATE];
-        let log_vol = states
-            .chunks_exact(d)
-            .map(|x| {
-                for i in 0..d {
-                    r[i] = x[i] - belief.mean()[i];
-                }
-                forward_sub(&chol[..d * d], d, &mut r[..d]);
-                let q: f64 = r[..d].iter().map(|v| v * v).sum();
-                let g = (-0.5 * q - log_det - 0.5 * d as f64 * LN_2PI).exp();
-                let rho = (1.0 - uniform_fraction) * g + u_dens;
-                -(n as f64 * rho).ln()
-            })
-            .collect();
-        Ok(Self {
-            dim: d,
-            states,
-            log_vol,
-        })
-    }
-
-    pub fn len(&self) -> usize {
-        self.log_vol.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.log_vol.is_empty()
-    }
-
-    pub fn state(&self, i: usize) -> &[f64] {
-        &self.states[i * self.dim..(i + 1) * self.dim]
-    }
-}
 
 /// Construction parameters of a [`LayeredChain`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -203,63 +118,13 @@ pub struct LayeredChain {
     pub step_of: Vec<usize>,
 }
 
-/// Locally linearised Gaussian transition of dx = f dt + F dw over `tau`
-/// from x: mean and covariance (column-major) by RK4 on the moment ODEs.
-pub fn propagate_gaussian<M: SdeModel + ?Sized>(
-    model: &M,
-    x: &[f64],
-    tau: f64,
-    substeps: usize,
-    mean: &mut [f64],
-    cov: &mut [f64],
-) {
-    let d = x.len();
-    let k = model.dims().noise;
-    let c = model.dims().control;
-    let u = [0.0; crate::MAX_CONTROL];
-    let rhs = |m: &[f64], p: &[f64], dm: &mut [f64], dp: &mut [f64]| {
-        let mut big_f = [0.0; MAX_STATE * MAX_NOISE];
-        model.drift(m, &u[..c], dm);
-        // J by central differences
-        let mut jac = [0.0; MAX_STATE * MAX_STATE];
-        let mut xp = [0.0; MAX_STATE];
-        let mut fp = [0.0; MAX_STATE];
-        let mut fm = [0.0; MAX_STATE];
-        for j in 0..d {
-            xp[..d].copy_from_slice(m);
-            let h = fd_step(m[j]);
-            xp[j] = m[j] + h;
-            model.drift(&xp[..d], &u[..c], &mut fp[..d]);
-            xp[j] = m[j] - h;
-            model.drift(&xp[..d], &u[..c], &mut fm[..d]);
-            for i in 0..d {
-                jac[i + j * d] = (fp[i] - fm[i]) / (2.0 * h);
-            }
-        }
-        model.diffusion(m, &mut big_f[..d * k]);
-        for i in 0..d {
-            for j in 0..d {
-                let mut s = 0.0;
-                for l in 0..d {
-                    s += jac[i + l * d] * p[l + j * d] + p[i + l * d] * jac[j + l * d];
-                }
-                for l in 0..k {
-                    s += big_f[i + l * d] * big_f[j + l * d];
-                }
-                dp[i + j * d] = s;
-            }
-        }
-    };
-    mean[..d].copy_from_slice(x);
-    cov[..d * d].fill(0.0);
-    let h = tau / substeps.max(1) as f64;
-    crate::filter::gauss::rk4_moments(d, mean, cov, h, substeps.max(1), rhs);
-}
-
 impl LayeredChain {
     /// Build the chain on `times` (strictly increasing) with `layers` and
     /// the map `layer_of` (one entry per time). Steps whose (source layer,
     /// target layer, τ) repeat are built once.
+    // One function (~115 lines): input checks, then one loop over layer
+    // steps that reuses the `near`/`w` buffers and the dedup keys across
+    // steps; split, each part would take all of them as arguments.
     pub fn build<M: SdeModel + ?Sized>(
         model: &M,
         times: Vec<f64>,
@@ -395,6 +260,9 @@ impl LayeredChain {
 /// is the log prior density of the first layer's states (`None`: all 0,
 /// e.g. a single known root). Returns the MAP chain path at every layer
 /// time.
+// One function (~115 lines): the checks, the forward max-product pass and
+// the back-tracking share the score and back-pointer arrays; the loop reads
+// as Alg. 3.2 in one place.
 pub fn decode_layered<M: SdeModel + ?Sized>(
     inner: &M,
     chain: &LayeredChain,
@@ -510,231 +378,4 @@ pub fn decode_layered<M: SdeModel + ?Sized>(
         states,
         log_score: best,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::filter::rts::rts_1d;
-    use crate::model::linear::{ou_1d, LinearSde};
-    use crate::rng::stream;
-    use nalgebra::DMatrix;
-    use rand::RngExt;
-    use rand_distr::StandardNormal;
-
-    #[test]
-    fn moment_propagation_matches_exact_linear_discretisation() {
-        let a = DMatrix::from_row_slice(2, 2, &[-1.0, 0.5, -0.3, -2.0]);
-        let f = DMatrix::from_row_slice(2, 2, &[0.2, 0.0, 0.05, 0.1]);
-        let model = LinearSde::new(
-            "lin2",
-            a,
-            DMatrix::zeros(2, 0),
-            f,
-            DMatrix::identity(2, 2),
-            vec![0.1, 0.1],
-            Bounds::new_box(&[-2.0, -2.0], &[2.0, 2.0]).unwrap(),
-        );
-        let x = [0.7, -0.4];
-        for tau in [0.02, 0.3] {
-            let (mut m, mut p) = ([0.0; 2], [0.0; 4]);
-            propagate_gaussian(&model, &x, tau, 16, &mut m, &mut p);
-            let disc = model.discretize(tau);
-            for i in 0..2 {
-                let want = disc.ad[(i, 0)] * x[0] + disc.ad[(i, 1)] * x[1];
-                assert!((m[i] - want).abs() < 1e-8, "mean {i}: {} vs {want}", m[i]);
-                for j in 0..2 {
-                    let q = disc.qd[(i, j)];
-                    assert!(
-                        (p[i + 2 * j] - q).abs() < 1e-6 * q.abs().max(1e-4),
-                        "cov {} vs {q}",
-                        p[i + 2 * j]
-                    );
-                }
-            }
-        }
-    }
-
-    /// Root + three layers of four 1-D states with unequal steps: the
-    /// decoder's path and score equal the best of all 4³ paths scored from
-    /// the closed-form OU transition and the trapezoid Girsanov factor.
-    #[test]
-    fn layered_viterbi_matches_brute_force_enumeration() {
-        let (a, s, g) = (1.5, 0.3, 0.2);
-        let model = ou_1d(a, s, 1.0, 2.0);
-        let times = vec![0.0, 0.1, 0.25, 0.3];
-        let pts = [
-            [-0.2, 0.1, 0.35, 0.5],
-            [-0.3, 0.0, 0.2, 0.4],
-            [-0.1, 0.05, 0.3, 0.6],
-        ];
-        let vols = [
-            [0.1, 0.2, 0.15, 0.3],
-            [0.2, 0.1, 0.1, 0.2],
-            [0.05, 0.1, 0.2, 0.1],
-        ];
-        let mut layers = vec![Layer::point(&[0.3])];
-        for (p, v) in pts.iter().zip(&vols) {
-            layers.push(Layer {
-                dim: 1,
-                states: p.to_vec(),
-                log_vol: v.iter().map(|x: &f64| x.ln()).collect(),
-            });
-        }
-        let path = ObsPath {
-            times: vec![0.0, 0.1, 0.2, 0.3],
-            y: vec![0.0, 0.04, 0.05, 0.09],
-            m: 1,
-        };
-        let y = |t: f64| {
-            let mut o = [0.0];
-            path.at(t, &mut o);
-            o[0]
-        };
-        for normalise in [false, true] {
-            let cfg = LayeredConfig {
-                c_near: 0.1,
-                min_near: 4, // Near = the whole next layer
-                substeps: 8,
-                normalise,
-            };
-            let chain =
-                LayeredChain::build(&model, times.clone(), layers.clone(), vec![0, 1, 2, 3], cfg)
-                    .unwrap();
-            let dec = decode_layered(&model, &chain, &[g], &path, None).unwrap();
-            let ln_n = |x1: f64, x0: f64, tau: f64| {
-                let mu = (-a * tau).exp() * x0;
-                let var = s * s * (1.0 - (-2.0 * a * tau).exp()) / (2.0 * a);
-                -0.5 * (x1 - mu).powi(2) / var - 0.5 * (2.0 * std::f64::consts::PI * var).ln()
-            };
-            let (mut best, mut arg) = (f64::NEG_INFINITY, vec![]);
-            for code in 0..64usize {
-                let idx = [0, code % 4, (code / 4) % 4, code / 16];
-                let mut w = 0.0;
-                let mut prev = 0.3;
-                for k in 1..4 {
-                    let tau = times[k] - times[k - 1];
-                    let x = pts[k - 1][idx[k]];
-                    w += ln_n(x, prev, tau);
-                    if normalise {
-                        let z: f64 = (0..4)
-                            .map(|j| ln_n(pts[k - 1][j], prev, tau).exp() * vols[k - 1][j])
-                            .sum();
-                        w -= z.ln();
-                    }
-                    let dy = y(times[k]) - y(times[k - 1]);
-                    w += (0.5 * (prev + x) * dy - tau / 6.0 * (prev * prev + prev * x + x * x))
-                        / (g * g);
-                    prev = x;
-                }
-                if w > best {
-                    best = w;
-                    arg = idx.iter().map(|&v| v as u32).collect();
-                }
-            }
-            assert_eq!(dec.slots, arg, "normalise={normalise}");
-            assert!(
-                (dec.log_score - best).abs() < 1e-6,
-                "{} vs {best}",
-                dec.log_score
-            );
-            assert_eq!(dec.states[3], pts[2][arg[3] as usize]);
-        }
-    }
-
-    #[test]
-    fn around_layer_volumes_integrate_the_set_and_the_belief() {
-        let bounds = Bounds::new_box(&[-1.0, -1.0], &[1.0, 1.0]).unwrap();
-        let b = Gaussian::diagonal(&[0.2, -0.1], &[0.05, 0.08]);
-        let mut rng = stream(7, 1);
-        let n = 20_000;
-        let l = Layer::around(&b, 2.0, 0.1, &bounds, n, &mut rng).unwrap();
-        // Σ v = importance-sampling estimate of μ(S) = 4
-        let vol: f64 = l.log_vol.iter().map(|v| v.exp()).sum();
-        assert!((vol - 4.0).abs() < 0.2, "Σ v = {vol}");
-        // Σ v N(x; m, P) estimates ∫ N = 1
-        let ig: f64 = (0..n)
-            .map(|i| {
-                let x = l.state(i);
-                let q = ((x[0] - 0.2) / 0.05).powi(2) + ((x[1] + 0.1) / 0.08).powi(2);
-                l.log_vol[i].exp() * (-0.5 * q).exp() / (2.0 * std::f64::consts::PI * 0.05 * 0.08)
-            })
-            .sum();
-        assert!((ig - 1.0).abs() < 0.05, "∫N ≈ {ig}");
-    }
-
-    /// Seeded OU runs: the decoded path's mean squared distance to the
-    /// exact MAP path (fine-grid RTS mean) at the layer times falls with n
-    /// and ends well below the posterior variance (the floor's own scale).
-    #[test]
-    fn layered_decoder_converges_to_the_exact_map_path() {
-        let (a, sig, gam, x0) = (1.0, 0.1, 0.1, 0.3);
-        let h = 1e-3;
-        let steps = 1000;
-        let model = ou_1d(a, sig, 1.0, 1.0);
-        let bounds = Bounds::new_box(&[-1.0], &[1.0]).unwrap();
-        let times: Vec<f64> = (0..=10).map(|k| k as f64 * 0.1).collect();
-        let cfg = LayeredConfig {
-            normalise: false,
-            ..LayeredConfig::default()
-        };
-        let sizes = [20usize, 100, 1000];
-        let chains: Vec<LayeredChain> = sizes
-            .iter()
-            .map(|&n| {
-                let mut rng = stream(11, n as u64);
-                let set = Layer::uniform(&bounds, n, &mut rng);
-                let mut of = vec![1; times.len()];
-                of[0] = 0;
-                LayeredChain::build(
-                    &model,
-                    times.clone(),
-                    vec![Layer::point(&[x0]), set],
-                    of,
-                    cfg,
-                )
-                .unwrap()
-            })
-            .collect();
-        let mut dist = [0.0; 3];
-        let mut post_var = 0.0;
-        let runs = 12;
-        for r in 0..runs {
-            let mut rng = stream(12, r);
-            let (mut x, mut y) = (x0, 0.0);
-            let (mut ts, mut ys, mut obs) = (vec![0.0], vec![0.0], vec![]);
-            for k in 1..=steps {
-                let dy = x * h + gam * h.sqrt() * rng.sample::<f64, _>(StandardNormal);
-                x += -a * x * h + sig * h.sqrt() * rng.sample::<f64, _>(StandardNormal);
-                y += dy;
-                obs.push(dy / h);
-                ts.push(k as f64 * h);
-                ys.push(y);
-            }
-            let rts = rts_1d(a, sig, gam, x0, 0.0, h, &obs);
-            let path = ObsPath {
-                times: ts,
-                y: ys,
-                m: 1,
-            };
-            for (i, c) in chains.iter().enumerate() {
-                let dec = decode_layered(&model, c, &[gam], &path, None).unwrap();
-                for (k, &t) in times.iter().enumerate().skip(1) {
-                    let j = (t / h).round() as usize;
-                    dist[i] += (dec.states[k] - rts.smooth_m[j]).powi(2) / (10.0 * runs as f64);
-                }
-            }
-            post_var +=
-                rts.smooth_p.iter().sum::<f64>() / (rts.smooth_p.len() as f64 * runs as f64);
-        }
-        eprintln!("distance to the exact MAP {dist:?}, posterior variance {post_var}");
-        assert!(
-            dist[1] < dist[0] && dist[2] < dist[1],
-            "not decreasing: {dist:?}"
-        );
-        assert!(
-            dist[2] < 0.02 * post_var,
-            "{dist:?} vs posterior variance {post_var}"
-        );
-    }
 }
