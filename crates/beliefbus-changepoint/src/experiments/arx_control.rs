@@ -28,6 +28,7 @@
 use super::meanshift_common::{run_rng, DATA, FILTER};
 use super::par::{default_threads, par_map};
 use super::report::{check_runs, mean_se, Params, Report, Row};
+use super::report::{BOUND, N_ARX, PARTICLES, RHO, THREADS};
 use crate::arx::control::{certainty_equivalence, uncertainty_adjusted};
 use crate::arx::linalg::Vector;
 use crate::arx::ls::{ForgettingRls, SlidingWindowLs};
@@ -41,10 +42,10 @@ use rand_distr::{Distribution, Normal};
 
 /// Parameters this experiment accepts.
 pub const PARAMS: &[ParamDoc] = &[
-    p("n", "3000", "steps per sequence"),
-    p("particles", "50", "particles M"),
-    p("rho", "0.001", "change-point probability per step"),
-    p("bound", "1", "cv2 rejuvenation bound"),
+    N_ARX,
+    PARTICLES,
+    RHO,
+    BOUND,
     p("scheme", "systematic", "resampling scheme"),
     p(
         "windows",
@@ -56,11 +57,7 @@ pub const PARAMS: &[ParamDoc] = &[
         "0.95,0.97,0.98,0.99,0.995",
         "forgetting factors swept",
     ),
-    p(
-        "threads",
-        "= cores, at most 2",
-        "worker threads over sequences",
-    ),
+    THREADS,
     p("period", "100", "period of the reference signal (steps)"),
 ];
 

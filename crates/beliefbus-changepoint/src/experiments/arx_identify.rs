@@ -16,6 +16,7 @@ use super::arx_common::{simulate_open_loop, RANGES};
 use super::meanshift_common::{run_rng, FILTER};
 use super::par::{default_threads, par_map};
 use super::report::{check_runs, mean_se, Params, Report, Row};
+use super::report::{BOUND, N_ARX, PARTICLES, RHO, THREADS};
 use crate::arx::linalg::{dot, Vector};
 use crate::arx::ls::{ForgettingRls, SlidingWindowLs};
 use crate::arx::plant::ThetaRegion;
@@ -28,10 +29,10 @@ use std::time::Instant;
 
 /// Parameters this experiment accepts.
 pub const PARAMS: &[ParamDoc] = &[
-    p("n", "3000", "steps per sequence"),
-    p("particles", "50", "particles M"),
-    p("rho", "0.001", "change-point probability per step"),
-    p("bound", "1", "cv2 rejuvenation bound"),
+    N_ARX,
+    PARTICLES,
+    RHO,
+    BOUND,
     p("scheme", "systematic", "resampling scheme"),
     p(
         "windows",
@@ -43,11 +44,7 @@ pub const PARAMS: &[ParamDoc] = &[
         "0.95,0.97,0.98,0.99,0.995,0.997,0.998,0.999",
         "forgetting factors swept (best reported)",
     ),
-    p(
-        "threads",
-        "= cores, at most 2",
-        "worker threads over sequences",
-    ),
+    THREADS,
 ];
 
 /// Default sweeps (documented in the report's params).

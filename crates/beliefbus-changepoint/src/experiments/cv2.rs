@@ -11,6 +11,7 @@ use super::meanshift_common::{
 };
 use super::par::{default_threads, par_map};
 use super::report::{check_runs, mean_se, setting, Params, Report, Row};
+use super::report::{N_SEQ, PARTICLES, RHO, SIGMA, THREADS};
 use crate::error::ChangepointError;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
 use crate::meanshift::MeanShiftModel;
@@ -19,14 +20,10 @@ use beliefbus_core::experiment_params::{keys, p, ParamDoc};
 
 /// Parameters this experiment accepts.
 pub const PARAMS: &[ParamDoc] = &[
-    p("n", "10000", "observations per sequence"),
-    p("particles", "50", "particles M"),
-    p(
-        "sigma",
-        "1",
-        "jump size standard deviation sigma of the mean-shift model",
-    ),
-    p("rho", "0.001", "change-point probability per step"),
+    N_SEQ,
+    PARTICLES,
+    SIGMA,
+    RHO,
     p(
         "bounds",
         "0,0.5,1,2,4,10,20,30,inf",
@@ -37,11 +34,7 @@ pub const PARAMS: &[ParamDoc] = &[
         "multinomial,residual,systematic",
         "resampling schemes swept",
     ),
-    p(
-        "threads",
-        "= cores, at most 2",
-        "worker threads over sequences",
-    ),
+    THREADS,
     p(
         "exact",
         "false",

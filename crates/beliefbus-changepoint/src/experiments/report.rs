@@ -4,6 +4,7 @@
 //! experiments.
 
 use crate::error::ChangepointError;
+use beliefbus_core::experiment_params::{p, ParamDoc};
 use serde_json::Value;
 use std::str::FromStr;
 
@@ -113,3 +114,20 @@ pub fn setting(v: f64) -> Value {
             .unwrap_or(Value::Null)
     }
 }
+
+/// The `--param` rows every experiment of this crate shares.
+pub const N_SEQ: ParamDoc = p("n", "10000", "observations per sequence");
+pub const N_ARX: ParamDoc = p("n", "3000", "steps per sequence");
+pub const PARTICLES: ParamDoc = p("particles", "50", "particles M");
+pub const SIGMA: ParamDoc = p(
+    "sigma",
+    "1",
+    "jump size standard deviation sigma of the mean-shift model",
+);
+pub const RHO: ParamDoc = p("rho", "0.001", "change-point probability per step");
+pub const BOUND: ParamDoc = p("bound", "1", "cv2 rejuvenation bound");
+pub const THREADS: ParamDoc = p(
+    "threads",
+    "= cores, at most 2",
+    "worker threads over sequences",
+);

@@ -8,6 +8,7 @@
 use super::meanshift_common::{rbpf_pass, run_rng, simulate, Pass, FILTER};
 use super::par::{default_threads, par_map};
 use super::report::{check_runs, mean_se, Params, Report, Row};
+use super::report::{N_SEQ, RHO, SIGMA, THREADS};
 use crate::error::ChangepointError;
 use crate::meanshift::bootstrap::MeanShiftBootstrap;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
@@ -18,19 +19,11 @@ use std::time::Instant;
 
 /// Parameters this experiment accepts.
 pub const PARAMS: &[ParamDoc] = &[
-    p("n", "10000", "observations per sequence"),
+    N_SEQ,
     p("particles", "50,500", "particle counts M compared"),
-    p(
-        "sigma",
-        "1",
-        "jump size standard deviation sigma of the mean-shift model",
-    ),
-    p("rho", "0.001", "change-point probability per step"),
-    p(
-        "threads",
-        "= cores, at most 2",
-        "worker threads over sequences",
-    ),
+    SIGMA,
+    RHO,
+    THREADS,
 ];
 
 fn bootstrap_pass(

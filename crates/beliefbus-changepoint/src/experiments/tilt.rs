@@ -7,6 +7,7 @@
 use super::meanshift_common::{rbpf_pass, run_rng, simulate, Pass, FILTER, TABLE2};
 use super::par::{default_threads, par_map};
 use super::report::{check_runs, mean_se, Params, Report, Row};
+use super::report::{BOUND, N_SEQ, PARTICLES, RHO, SIGMA, THREADS};
 use crate::error::ChangepointError;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
 use crate::meanshift::MeanShiftModel;
@@ -15,15 +16,11 @@ use beliefbus_core::experiment_params::{keys, p, ParamDoc};
 
 /// Parameters this experiment accepts.
 pub const PARAMS: &[ParamDoc] = &[
-    p("n", "10000", "observations per sequence"),
-    p("particles", "50", "particles M"),
-    p(
-        "sigma",
-        "1",
-        "jump size standard deviation sigma of the mean-shift model",
-    ),
-    p("rho", "0.001", "change-point probability per step"),
-    p("bound", "1", "cv2 rejuvenation bound"),
+    N_SEQ,
+    PARTICLES,
+    SIGMA,
+    RHO,
+    BOUND,
     p(
         "ratios",
         "= Table 2 ratios r",
@@ -34,11 +31,7 @@ pub const PARAMS: &[ParamDoc] = &[
         "systematic",
         "resampling scheme: multinomial, residual or systematic",
     ),
-    p(
-        "threads",
-        "= cores, at most 2",
-        "worker threads over sequences",
-    ),
+    THREADS,
 ];
 
 /// Run the experiment: `runs` sequences (default 100) from `seed`.

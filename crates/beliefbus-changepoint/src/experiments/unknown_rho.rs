@@ -12,6 +12,7 @@ use super::meanshift_common::{
 };
 use super::par::{default_threads, par_map};
 use super::report::{check_runs, mean_se, setting, Params, Report, Row};
+use super::report::{N_SEQ, PARTICLES, RHO, SIGMA, THREADS};
 use crate::error::ChangepointError;
 use crate::meanshift::rbpf::{RbpfConfig, RhoPrior};
 use crate::meanshift::MeanShiftModel;
@@ -21,14 +22,10 @@ use rand_distr::{Beta, Distribution};
 
 /// Parameters this experiment accepts.
 pub const PARAMS: &[ParamDoc] = &[
-    p("n", "10000", "observations per sequence"),
-    p("particles", "50", "particles M"),
-    p(
-        "sigma",
-        "1",
-        "jump size standard deviation sigma of the mean-shift model",
-    ),
-    p("rho", "0.001", "change-point probability per step"),
+    N_SEQ,
+    PARTICLES,
+    SIGMA,
+    RHO,
     p("alpha", "1", "Beta(alpha, beta) prior of rho"),
     p("beta", "999", "Beta(alpha, beta) prior of rho"),
     p(
@@ -41,11 +38,7 @@ pub const PARAMS: &[ParamDoc] = &[
         "systematic",
         "resampling scheme: multinomial, residual or systematic",
     ),
-    p(
-        "threads",
-        "= cores, at most 2",
-        "worker threads over sequences",
-    ),
+    THREADS,
 ];
 
 struct RunOut {
