@@ -5,9 +5,9 @@
 //! monitor and the clock.
 
 use super::report::{self, Supervision, SupervisionFigures};
-use super::spawn::{resume_path, signal, spawn, spawn_child};
+use super::spawn::{resume_path, spawn, spawn_child};
 use super::supervise::{
-    chaos_candidates, describe, give_up_text, heartbeat_overdue, starvers, Recovery, Stage,
+    chaos_candidates, describe, give_up_text, heartbeat_overdue, signal, starvers, Recovery, Stage,
     KILL_REAP_TIMEOUT,
 };
 use super::{RunOptions, SensorSource};

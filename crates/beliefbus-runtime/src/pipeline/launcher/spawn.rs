@@ -162,12 +162,6 @@ pub(super) fn spawn_child(
         .with_context(|| format!("cannot start the {} stage", kind.name()))
 }
 
-/// Send `sig` to a child we spawned.
-pub(super) fn signal(pid: u32, sig: libc::c_int) {
-    // SAFETY: kill on a child we spawned and have not reaped yet.
-    unsafe { libc::kill(pid as libc::pid_t, sig) };
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -14,7 +14,6 @@
 //! synthetic exit statuses and instants. The loop that applies them to real
 //! processes is [`super::run_loop`].
 
-use super::spawn::signal;
 use crate::ipc::{StageKind, StageStats, STATS_DROP_REASONS};
 use crate::pipeline::monitor::Output;
 use crate::pipeline::supervisor::{Death, Decision, GiveUpReason, RestartPolicy, RestartState};
@@ -340,6 +339,12 @@ impl Recovery {
         }
         self.ms()
     }
+}
+
+/// Send `sig` to a child we spawned.
+pub(super) fn signal(pid: u32, sig: libc::c_int) {
+    // SAFETY: kill on a child we spawned and have not reaped yet.
+    unsafe { libc::kill(pid as libc::pid_t, sig) };
 }
 
 #[cfg(test)]
