@@ -11,6 +11,8 @@
 //! on linear models), and the Markov-chain filter of thesis ch. 3.
 
 pub mod build;
+#[cfg(test)]
+mod chain_collapse_tests;
 pub mod chain_filter;
 pub mod chain_spec;
 pub mod control_transport;
@@ -22,6 +24,7 @@ pub mod kalman;
 pub mod layered_decoder;
 pub mod live_chain;
 pub mod pf;
+pub mod regularise;
 pub mod resample;
 pub mod rts;
 pub mod smoother;
@@ -87,6 +90,13 @@ pub trait BayesFilter: Send {
     fn update(&mut self, meas: &Measurement) -> Result<UpdateInfo, FilterError>;
     /// Mean and covariance of the current belief.
     fn belief(&self) -> Gaussian;
+    /// Steps that collapsed since construction (see
+    /// [`regularise`](self::regularise): an update that kept less than a
+    /// fraction of its effective support, or whose weights all vanished);
+    /// None for filters without weights (the Gaussian filters).
+    fn ess_collapses(&self) -> Option<u64> {
+        None
+    }
 }
 
 /// Check the inputs common to every backend's `predict`.

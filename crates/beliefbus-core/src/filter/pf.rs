@@ -14,6 +14,15 @@
 //! belief:   m = Σ W x,  P = Σ W (x − m)(x − m)ᵀ
 //! ```
 //!
+//! Options (see [`super::regularise`]): `regularisation` c > 0 jitters the
+//! particles after every resampling with a Gaussian kernel of bandwidth
+//! c·h_opt·S^{1/2} (S the weighted covariance before resampling; Musso,
+//! Oudjane & Le Gland's regularised PF); off by default, so a seeded run
+//! draws the same numbers as without it. Every update whose ESS (before
+//! resampling) falls below `collapse_fraction`·N, or whose weights all
+//! vanish, is counted in [`Pf::collapses`] — a lost filter is visible in
+//! its stats, not only in its error.
+//!
 //! Everything is sized at construction: `predict` and `update` do not
 //! allocate. A particle whose state becomes non-finite gets weight 0; if all
 //! weights vanish the step is refused (`Degenerate` for an update,
@@ -22,6 +31,7 @@
 use super::build::{self, BuildError, ConfigError};
 use super::gauss::{self, HALF_LOG_2PI};
 use super::gauss_state::{predict_span, reset_or_keep};
+use super::regularise::{self, collapse_threshold, DEFAULT_COLLAPSE_FRACTION};
 use super::resample::Scheme;
 use super::{check_measurement, BayesFilter, FilterError, UpdateInfo};
 use crate::belief::Gaussian;
@@ -53,6 +63,17 @@ pub struct PfConfig {
     pub resampling: Scheme,
     /// Seed of the filter's random stream.
     pub seed: u64,
+    /// Regularised resampling: after each resampling, jitter the particles
+    /// with a Gaussian kernel of bandwidth `regularisation` × the optimal
+    /// h_opt = (4/(d+2))^{1/(d+4)} N^{−1/(d+4)} times the square root of
+    /// their weighted covariance (Musso, Oudjane & Le Gland). 0: off (the
+    /// plain bootstrap filter); 1: the optimal bandwidth for a Gaussian
+    /// posterior.
+    pub regularisation: f64,
+    /// An update whose ESS (before resampling) is below max(f·N, 2) for
+    /// this fraction f, or whose weights all vanish, counts as a collapse
+    /// ([`Pf::collapses`]; default 0.01; 0: only vanished weights).
+    pub collapse_fraction: f64,
 }
 
 impl Default for PfConfig {
@@ -63,6 +84,8 @@ impl Default for PfConfig {
             max_dt: 0.01,
             resampling: Scheme::Systematic,
             seed: 0,
+            regularisation: 0.0,
+            collapse_fraction: DEFAULT_COLLAPSE_FRACTION,
         }
     }
 }
@@ -77,6 +100,21 @@ impl PfConfig {
             return Err(ConfigError::new(
                 "resample_threshold",
                 format!("must be in [0, 1], got {}", self.resample_threshold),
+            ));
+        }
+        if !(self.regularisation.is_finite() && self.regularisation >= 0.0) {
+            return Err(ConfigError::new(
+                "regularisation",
+                format!(
+                    "must be a finite bandwidth factor ≥ 0 (0: off), got {}",
+                    self.regularisation
+                ),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.collapse_fraction) {
+            return Err(ConfigError::new(
+                "collapse_fraction",
+                format!("must be in [0, 1], got {}", self.collapse_fraction),
             ));
         }
         build::positive("max_dt", self.max_dt)
@@ -143,6 +181,9 @@ pub struct Pf<M: SdeModel> {
     lw_new: Vec<f64>,
     ancestors: Vec<usize>,
     ess: f64,
+    /// Updates that collapsed (ESS < collapse_fraction·N or all weights
+    /// vanished) and predictions in which every particle diverged.
+    collapses: u64,
     rng: SimRng,
 }
 
@@ -175,6 +216,7 @@ impl<M: SdeModel> Pf<M> {
             lw_new: vec![0.0; n],
             ancestors: vec![0; n],
             ess: n as f64,
+            collapses: 0,
             rng: rng::stream(cfg.seed, PF_STREAM),
         };
         pf.draw_prior(prior)?;
@@ -228,6 +270,12 @@ impl<M: SdeModel> Pf<M> {
     pub fn ess(&self) -> f64 {
         self.ess
     }
+    /// Steps that collapsed since construction: updates whose ESS before
+    /// resampling fell below `collapse_fraction`·N or whose weights all
+    /// vanished, and predictions in which every particle diverged.
+    pub fn collapses(&self) -> u64 {
+        self.collapses
+    }
     /// The config the filter was built with.
     pub fn config(&self) -> &PfConfig {
         &self.cfg
@@ -237,10 +285,15 @@ impl<M: SdeModel> Pf<M> {
         &self.model
     }
 
-    /// Resample unconditionally with the configured scheme.
+    /// Resample unconditionally with the configured scheme, then (with
+    /// `regularisation` > 0) jitter the particles by the kernel scaled by
+    /// their weighted covariance before resampling.
     pub fn resample(&mut self) -> Result<(), FilterError> {
         let d = self.dims.state;
         let n = self.cfg.particles;
+        let mut l = [0.0; MAX_STATE * MAX_STATE];
+        let jitter = self.cfg.regularisation > 0.0
+            && regularise::weighted_cov_factor(&self.x, &self.w, d, &mut l[..d * d]);
         self.cfg
             .resampling
             .resample(&self.w, &mut self.rng, &mut self.ancestors)?;
@@ -248,6 +301,10 @@ impl<M: SdeModel> Pf<M> {
             self.x_alt[k * d..(k + 1) * d].copy_from_slice(&self.x[a * d..(a + 1) * d]);
         }
         std::mem::swap(&mut self.x, &mut self.x_alt);
+        if jitter {
+            let h = self.cfg.regularisation * regularise::optimal_bandwidth(n, d);
+            regularise::jitter(&mut self.x, d, &l[..d * d], h, &mut self.rng);
+        }
         self.lw.fill(-(n as f64).ln());
         self.w.fill(1.0 / n as f64);
         self.ess = n as f64;
@@ -300,6 +357,7 @@ impl<M: SdeModel> BayesFilter for Pf<M> {
             }
         }
         if alive == 0 {
+            self.collapses += 1;
             return Err(FilterError::Numerical("every particle diverged"));
         }
         std::mem::swap(&mut self.x, &mut self.x_alt);
@@ -370,11 +428,17 @@ impl<M: SdeModel> BayesFilter for Pf<M> {
                 self.lw[i] + ll
             };
         }
-        let s = weights::normalise(&self.lw_new, &mut self.w).ok_or(FilterError::Degenerate)?;
+        let Some(s) = weights::normalise(&self.lw_new, &mut self.w) else {
+            self.collapses += 1;
+            return Err(FilterError::Degenerate);
+        };
         for (lw, &l) in self.lw.iter_mut().zip(&self.lw_new) {
             *lw = l - s.log_sum;
         }
         self.ess = s.ess;
+        if s.ess < collapse_threshold(self.cfg.collapse_fraction, n) {
+            self.collapses += 1;
+        }
         let log_evidence = s.log_sum - log_norm;
         let resampled = s.ess < self.cfg.resample_threshold * n as f64;
         if resampled {
@@ -385,6 +449,10 @@ impl<M: SdeModel> BayesFilter for Pf<M> {
             ess: s.ess,
             resampled,
         })
+    }
+
+    fn ess_collapses(&self) -> Option<u64> {
+        Some(self.collapses)
     }
 
     fn belief(&self) -> Gaussian {
@@ -426,3 +494,7 @@ impl<M: SdeModel> BayesFilter for Pf<M> {
 #[cfg(test)]
 #[path = "pf_tests.rs"]
 mod tests;
+
+#[cfg(test)]
+#[path = "pf_regularise_tests.rs"]
+mod regularise_tests;

@@ -146,6 +146,11 @@ pub struct ChainFilter<M: SdeModel> {
     /// number of updates (for [`ChainFilter::mean_support`]).
     support_sum: u64,
     updates: u64,
+    /// Updates that collapsed (refused, or kept less than
+    /// `collapse_fraction` of the effective support; see
+    /// [`crate::filter::regularise`]).
+    collapses: u64,
+    collapse_fraction: f64,
 }
 
 impl<M: SdeModel> ChainFilter<M> {
@@ -194,6 +199,8 @@ impl<M: SdeModel> ChainFilter<M> {
             discarded_total: 0.0,
             support_sum: 0,
             updates: 0,
+            collapses: 0,
+            collapse_fraction: crate::filter::regularise::DEFAULT_COLLAPSE_FRACTION,
         };
         f.refresh_obs_means(0);
         f.tilt_probs.resize(f.chain.nnz(), 0.0);
@@ -285,6 +292,23 @@ impl<M: SdeModel> ChainFilter<M> {
     /// Number of states carrying mass.
     pub fn support(&self) -> usize {
         self.active.len()
+    }
+
+    /// Updates that collapsed since construction: refused (no state with
+    /// mass explains y), or kept less than the collapse fraction of the
+    /// predicted mass's effective support, ρ = (Σφp)²/(Σφ·Σφp²)
+    /// (see [`crate::filter::regularise`]).
+    pub fn collapses(&self) -> u64 {
+        self.collapses
+    }
+
+    /// The collapse fraction f (default 0.01; clamped to [0, 1]).
+    pub fn set_collapse_fraction(&mut self, f: f64) {
+        self.collapse_fraction = if f.is_finite() {
+            f.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
     }
 
     /// Mean support after an update's flush over every update since
@@ -432,6 +456,10 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
         let g = self.moments();
         self.belief.set(Some(g));
         g
+    }
+
+    fn ess_collapses(&self) -> Option<u64> {
+        Some(self.collapses)
     }
 }
 

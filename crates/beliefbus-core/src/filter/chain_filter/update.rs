@@ -23,6 +23,10 @@ const MIN_UNSHIFTED_SUM: f64 = 1e-250;
 /// What the weighting pass of an update found.
 struct Weighed {
     sum: f64,
+    /// Σφ over the support and Σ w·exp(l − shift) = Σφ p² (scaled like
+    /// w²): with `sum` the fraction of effective support kept.
+    mass: f64,
+    sq: f64,
     wmax: f64,
     lmax: f64,
     /// Range of histogram buckets touched (empty when lo > hi).
@@ -44,8 +48,12 @@ impl<M: SdeModel> ChainFilter<M> {
         // `active` (contiguous, not by slot).
         let mut shift = 0.0;
         let mut w = self.weigh(y, &lik, shift);
-        if !(w.sum > MIN_UNSHIFTED_SUM && w.sum.is_finite()) {
+        // Also when Σφp² underflows (every likelihood beyond ≈ 24σ): the
+        // collapse test needs it, and the shifted pass gives the same
+        // posterior.
+        if !(w.sum > MIN_UNSHIFTED_SUM && w.sum.is_finite() && w.sq > MIN_UNSHIFTED_SUM) {
             if !w.lmax.is_finite() {
+                self.collapses += 1;
                 return Err(FilterError::Degenerate);
             }
             self.clear_hist(&w);
@@ -55,7 +63,11 @@ impl<M: SdeModel> ChainFilter<M> {
         let sum = w.sum;
         if !(sum > 0.0 && sum.is_finite()) {
             self.clear_hist(&w);
+            self.collapses += 1;
             return Err(FilterError::Degenerate);
+        }
+        if sum * sum < self.collapse_fraction * w.mass * w.sq {
+            self.collapses += 1;
         }
         // The cut, in the unnormalised weights' units.
         let cut = match self.flush {
@@ -112,6 +124,8 @@ impl<M: SdeModel> ChainFilter<M> {
         let mut r = [0.0; MAX_OBS];
         let mut out = Weighed {
             sum: 0.0,
+            mass: 0.0,
+            sq: 0.0,
             wmax: 0.0,
             lmax: f64::NEG_INFINITY,
             lo: EXP_BUCKETS,
@@ -124,13 +138,12 @@ impl<M: SdeModel> ChainFilter<M> {
             out.lmax = out.lmax.max(l);
             let a = l - shift;
             // exp(−700) ≈ 1e-304: below that the result is zero or subnormal.
-            let w = if a > -700.0 {
-                self.phi[z] * a.exp()
-            } else {
-                0.0
-            };
+            let e = if a > -700.0 { a.exp() } else { 0.0 };
+            let w = self.phi[z] * e;
             self.ll[j] = w;
             out.sum += w;
+            out.mass += self.phi[z];
+            out.sq += w * e;
             out.wmax = out.wmax.max(w);
             if mass_rule {
                 // w ≤ 1: biased exponent ≤ 1023

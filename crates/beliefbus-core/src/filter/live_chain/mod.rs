@@ -202,6 +202,10 @@ pub struct LiveChainFilter<M: SdeModel, S: AsRef<[u64]>> {
     /// below this many states (0: never); see [`Self::reanchor`].
     reanchor_ess: f64,
     reanchors: u64,
+    /// Updates that collapsed, and the fraction of effective support an
+    /// update must keep not to (see `update`).
+    collapses: u64,
+    collapse_fraction: f64,
     /// Moving frame (see [`Self::set_moving_frame`]): the active version's
     /// frame drift w and the frame's displacement F (mass at z stands for
     /// the belief at z + F + pending_d).
@@ -279,6 +283,8 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             respreads: 0,
             reanchor_ess: 0.0,
             reanchors: 0,
+            collapses: 0,
+            collapse_fraction: crate::filter::regularise::DEFAULT_COLLAPSE_FRACTION,
             moving: false,
             pre_w: Vec::with_capacity(n),
             frame_w: [0.0; MAX_STATE],
@@ -326,6 +332,20 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
     /// Times the belief was re-spread after a degenerate update.
     pub fn respreads(&self) -> u64 {
         self.respreads
+    }
+    /// Updates that collapsed on the chain: re-spread or refused, or kept
+    /// less than the collapse fraction of the predicted mass's effective
+    /// support (see [`crate::filter::regularise`]).
+    pub fn collapses(&self) -> u64 {
+        self.collapses
+    }
+    /// The collapse fraction f (default 0.01; clamped to [0, 1]).
+    pub fn set_collapse_fraction(&mut self, f: f64) {
+        self.collapse_fraction = if f.is_finite() {
+            f.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
     }
     /// (version, states, δ) of the active snapshot.
     pub fn active_info(&self) -> Option<(u64, usize, f64)> {
@@ -411,6 +431,9 @@ impl<M: SdeModel, S: AsRef<[u64]> + Send> BayesFilter for LiveChainFilter<M, S> 
     }
     fn belief(&self) -> Gaussian {
         LiveChainFilter::belief(self)
+    }
+    fn ess_collapses(&self) -> Option<u64> {
+        Some(self.collapses)
     }
 }
 

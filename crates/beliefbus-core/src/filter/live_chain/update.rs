@@ -8,6 +8,12 @@
 //! accumulated in the same pass, a re-spread from the inflated predicted
 //! Gaussian (then from the chain's volumes) when no state with mass
 //! explains y, and the optional re-anchoring of a collapsed posterior.
+//!
+//! An update *collapses* (counted in `collapses`, see
+//! [`crate::filter::regularise`]) when it needed a re-spread or refused,
+//! or when the reweighting kept less than a fraction f of the predicted
+//! mass's effective support, ρ = (Σφ p)² / (Σφ · Σφ p²) < f — the PF's
+//! ESS/N, independent of how finely the chain resolves the belief.
 
 use super::mass::{gaussian_log_weight, ObsTerms};
 use super::{frame_of, LiveChainFilter, FLUSH, RESPREAD_INFLATE};
@@ -55,6 +61,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             return r;
         };
         check_measurement(meas, self.dims)?;
+        let respreads = self.respreads;
         let view = act.snap.view();
         let g_z = &self.obs_mean[act.buf];
         let (m, d) = (self.dims.obs, self.dims.state);
@@ -83,14 +90,18 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             let (phi, aux, tmp) = (&mut self.phi, &mut self.aux, &mut self.tmp);
             r = weigh(&self.model, g_z, phi, aux, tmp, &lk, &meas.y[..m]);
         }
-        let Some((lmax, sum, tmax)) = r else {
+        let Some((lmax, sum, tmax, kept)) = r else {
             // No state of the chain at all (cannot happen on a parsed
             // snapshot): keep the prediction.
+            self.collapses += 1;
             self.mass_mean = None;
             self.last = self.moments(&view);
             self.belief.set(None);
             return Err(FilterError::Degenerate);
         };
+        if self.respreads > respreads || kept < self.collapse_fraction {
+            self.collapses += 1;
+        }
         let inv = 1.0 / sum;
         let thr = FLUSH.max(self.flush_rel * tmax * inv);
         let centre = &self.last.mean[..d];
@@ -262,7 +273,8 @@ fn flush_pass(
 }
 
 /// tmp ← φ(z)·p(y|z)/exp(l_max) over the states with mass (`g_z` their
-/// observation means, `aux` scratch); returns (l_max, Σ tmp, max tmp), or
+/// observation means, `aux` scratch); returns (l_max, Σ tmp, max tmp, ρ)
+/// with ρ = (Σφp)²/(Σφ·Σφp²) the fraction of effective support kept, or
 /// None when nothing is left (degenerate).
 fn weigh<M: SdeModel>(
     model: &M,
@@ -272,7 +284,7 @@ fn weigh<M: SdeModel>(
     tmp: &mut Vec<f64>,
     lk: &ObsTerms,
     y: &[f64],
-) -> Option<(f64, f64, f64)> {
+) -> Option<(f64, f64, f64, f64)> {
     let m = model.dims().obs;
     let n = phi.len();
     aux.clear();
@@ -287,19 +299,24 @@ fn weigh<M: SdeModel>(
         aux[z] = l;
         lmax = lmax.max(l);
     }
-    let (mut sum, mut tmax) = (0.0, 0.0f64);
+    let (mut sum, mut tmax, mut mass, mut sq) = (0.0, 0.0f64, 0.0, 0.0);
     tmp.clear();
     tmp.resize(n, 0.0);
     if lmax.is_finite() {
         for z in 0..n {
             let a = aux[z] - lmax;
-            let w = if a > -700.0 { phi[z] * a.exp() } else { 0.0 };
+            let e = if a > -700.0 { a.exp() } else { 0.0 };
+            let w = phi[z] * e;
             tmp[z] = w;
             sum += w;
+            // φ·p² (scaled like w): the likelihood's second moment.
+            sq += w * e;
+            mass += phi[z];
             tmax = tmax.max(w);
         }
     }
-    (sum > 0.0 && sum.is_finite()).then_some((lmax, sum, tmax))
+    let kept = sum * sum / (mass * sq);
+    (sum > 0.0 && sum.is_finite()).then_some((lmax, sum, tmax, kept))
 }
 
 /// φ(z) ∝ N(z; g)·vol(z) on the states of `view` (mass coordinates), into
