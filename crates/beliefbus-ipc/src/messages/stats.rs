@@ -108,6 +108,9 @@ pub mod stats_flags {
     pub const FIFO: u32 = 2;
     /// Its memory is locked (mlockall).
     pub const MLOCKED: u32 = 4;
+    /// Filter: the backend counts collapsed steps (`ess_collapses` is
+    /// meaningful; a Gaussian filter has no weights to collapse).
+    pub const COLLAPSES_COUNTED: u32 = 8;
 }
 
 /// Periodic (and final) statistics of a stage (stage → launcher).
@@ -195,6 +198,10 @@ pub struct StageStats {
     /// Filter: installs that left the fallback untethered (the chain was
     /// doubtful).
     pub chain_fallback_untethered: u64,
+    /// Filter (PF or chain backend, flag `COLLAPSES_COUNTED`): updates that
+    /// kept less than the collapse fraction of their effective support or
+    /// whose weights all vanished.
+    pub ess_collapses: u64,
 }
 
 impl Default for StageStats {
@@ -237,6 +244,7 @@ impl Default for StageStats {
             chain_fallback_p50_ns: 0,
             chain_fallback_p99_ns: 0,
             chain_fallback_untethered: 0,
+            ess_collapses: 0,
         }
     }
 }

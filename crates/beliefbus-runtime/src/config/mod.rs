@@ -293,6 +293,12 @@ pub struct ChainFilterConfig {
     /// (1/Σφ²) falls below this (0: never; see `LiveChainFilter::reanchor`).
     #[serde(default)]
     pub reanchor_ess: f64,
+    /// An update that keeps less than this fraction of the predicted mass's
+    /// effective support, (Σφp)²/(Σφ·Σφp²) — the PF's ESS/N — or that
+    /// needs a re-spread, counts as a collapse (report `filter.ess_collapses`;
+    /// see `filter::regularise`).
+    #[serde(default = "default_collapse_fraction")]
+    pub collapse_fraction: f64,
     /// `[filter.chain.stale]`: the stale-chain fallback (see
     /// `stage::chain_guard`).
     #[serde(default)]
@@ -303,11 +309,16 @@ fn default_prepare_budget() -> f64 {
     200.0
 }
 
+fn default_collapse_fraction() -> f64 {
+    crate::filter::regularise::DEFAULT_COLLAPSE_FRACTION
+}
+
 impl Default for ChainFilterConfig {
     fn default() -> Self {
         Self {
             prepare_budget_us: default_prepare_budget(),
             reanchor_ess: 0.0,
+            collapse_fraction: default_collapse_fraction(),
             stale: Default::default(),
         }
     }

@@ -261,3 +261,35 @@ fn backend_names_are_the_serde_names_and_parse_back() {
     assert_eq!(ControlBackend::VARIANTS, ["mppi", "implicit", "none"]);
     assert!("PF".parse::<FilterBackend>().is_err());
 }
+
+#[test]
+fn regularisation_and_collapse_fractions_are_keys_with_checked_values() {
+    let c = load_str(
+        BASE,
+        &[
+            "filter.pf.regularisation=0.5".into(),
+            "filter.pf.collapse_fraction=0.05".into(),
+            "filter.chain.collapse_fraction=0.02".into(),
+        ],
+    )
+    .unwrap();
+    assert_eq!(c.filter.pf.regularisation, 0.5);
+    assert_eq!(c.filter.pf.collapse_fraction, 0.05);
+    assert_eq!(c.filter.chain.collapse_fraction, 0.02);
+    // Off by default.
+    let d = load_str(BASE, &[]).unwrap();
+    assert_eq!(d.filter.pf.regularisation, 0.0);
+    for (set, key) in [
+        ("filter.pf.regularisation=-1", "filter.pf.regularisation"),
+        (
+            "filter.pf.collapse_fraction=2",
+            "filter.pf.collapse_fraction",
+        ),
+        (
+            "filter.chain.collapse_fraction=-0.1",
+            "filter.chain.collapse_fraction",
+        ),
+    ] {
+        assert_eq!(err(BASE, &[set]).key, key, "{set}");
+    }
+}

@@ -349,6 +349,13 @@ impl PipelineConfig {
             "filter.chain.prepare_budget_us",
             self.filter.chain.prepare_budget_us,
         )?;
+        let cf = self.filter.chain.collapse_fraction;
+        if !(0.0..=1.0).contains(&cf) {
+            return Err(ConfigError::new(
+                "filter.chain.collapse_fraction",
+                format!("must be in [0, 1], got {cf}"),
+            ));
+        }
         self.filter
             .chain
             .stale

@@ -197,6 +197,9 @@ pub struct Metrics {
     pub cost_time: f64,
     /// Chain figures (filter with the chain backend, refine).
     pub chain: ChainMetrics,
+    /// Filter: collapsed steps of a weighted filter (PF, chain; None for a
+    /// Gaussian filter; see `filter::regularise`).
+    pub ess_collapses: Option<u64>,
 }
 
 /// Chain figures of a stage (see the `chain_*` fields of [`StageStats`]).
@@ -235,6 +238,7 @@ impl Metrics {
             cost_integral: 0.0,
             cost_time: 0.0,
             chain: ChainMetrics::default(),
+            ess_collapses: None,
         }
     }
 
@@ -285,8 +289,14 @@ impl Metrics {
             stage: id.kind as u32,
             pid: id.pid,
             core: id.core.map(|c| c as i32).unwrap_or(-1),
-            flags: id.flags,
+            flags: id.flags
+                | if self.ess_collapses.is_some() {
+                    crate::ipc::stats_flags::COLLAPSES_COUNTED
+                } else {
+                    0
+                },
             processed: self.processed,
+            ess_collapses: self.ess_collapses.unwrap_or(0),
             dropped: self.dropped,
             rejected: self.rejected(),
             rejected_by_reason: self.rejected_by_reason,

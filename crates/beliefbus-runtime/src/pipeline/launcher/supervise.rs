@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 pub(super) const KILL_REAP_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// Number of counters carried over from earlier incarnations.
-const CARRIED: usize = 7;
+const CARRIED: usize = 8;
 
 /// One stage of the run: its current process and its history.
 pub(super) struct Stage {
@@ -48,7 +48,8 @@ pub(super) struct Stage {
     pub heartbeat_misses: u64,
     pub chaos_kills: u64,
     /// Counters of earlier incarnations (processed, dropped, rejected,
-    /// deadline misses, late, controls received, processed after warm-up).
+    /// deadline misses, late, controls received, processed after warm-up,
+    /// collapsed filter updates).
     pub earlier: [u64; CARRIED],
     /// `dropped_by_reason` of earlier incarnations.
     pub earlier_drops: [u64; STATS_DROP_REASONS],
@@ -160,6 +161,7 @@ impl Stage {
         st.late += e[4];
         st.controls_received += e[5];
         st.processed_after_warmup += e[6];
+        st.ess_collapses += e[7];
         for (d, x) in st.dropped_by_reason.iter_mut().zip(self.earlier_drops) {
             *d += x;
         }
@@ -208,6 +210,7 @@ fn counters(st: &StageStats) -> [u64; CARRIED] {
         st.late,
         st.controls_received,
         st.processed_after_warmup,
+        st.ess_collapses,
     ]
 }
 

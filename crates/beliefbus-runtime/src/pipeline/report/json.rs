@@ -38,6 +38,10 @@ pub struct RunReport {
     pub stages: BTreeMap<String, StageReport>,
     pub accuracy: AccuracyReport,
     pub control: ControlReport,
+    /// The filter's collapsed steps (added with a default: reports written
+    /// before it parse).
+    #[serde(default)]
+    pub filter: FilterReport,
     pub chain: ChainReport,
     pub streams: StreamsReport,
     pub shared_memory: SharedMemoryReport,
@@ -124,6 +128,18 @@ pub struct ControlReport {
     pub cost: Option<f64>,
     pub compute_p50_us: Option<f64>,
     pub compute_p99_us: Option<f64>,
+}
+
+/// `filter`: how many of the filter's updates collapsed (see
+/// `filter::regularise`: the update kept less than `collapse_fraction` of
+/// the effective support — ESS below that fraction of N for the PF — or
+/// every weight vanished). `ess_collapses` is null for a Gaussian filter
+/// (EKF, UKF) or without the filter's stats.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FilterReport {
+    /// Observations filtered (the filter stage's `processed`).
+    pub updates: u64,
+    pub ess_collapses: Option<u64>,
 }
 
 /// The chain filter's section ([`ReportInput::chain`]).
@@ -318,6 +334,7 @@ impl ReportInput {
                 samples: a.samples,
             },
             control: self.control(),
+            filter: self.filter_health(),
             chain: self.chain(),
             streams: StreamsReport {
                 observations: self.observation_books().map(|(p, c, u)| ObservationBooks {
@@ -360,6 +377,17 @@ impl ReportInput {
             ),
             compute_p50_us: computed.map(|c| us(c.compute.p50_ns)),
             compute_p99_us: computed.map(|c| us(c.compute.p99_ns)),
+        }
+    }
+
+    /// The `filter` section ([`FilterReport`]).
+    pub(super) fn filter_health(&self) -> FilterReport {
+        let f = self.stats(StageKind::Filter);
+        FilterReport {
+            updates: f.map(|s| s.processed).unwrap_or(0),
+            ess_collapses: f
+                .filter(|s| s.flags & stats_flags::COLLAPSES_COUNTED != 0)
+                .map(|s| s.ess_collapses),
         }
     }
 

@@ -15,6 +15,7 @@
 //!   accuracy: {rmse_position, rmse_state, rmse_position_raw, beliefs, samples},
 //!   control:  {waypoints_reached, mean_distance_to_waypoint, controls_received,
 //!              controller, cost, compute_p50_us, compute_p99_us},
+//!   filter:   {updates, ess_collapses}   (null collapses: a Gaussian filter)
 //!   chain:    {versions, states, delta_s, swap_p50_us, swap_p99_us, mass_lost_max,
 //!              published, refine_states, fallback_steps, fallback_episodes,
 //!              fallback_by_cause: {degenerate, age, evidence}, fallback_reinits,
@@ -45,9 +46,9 @@ mod json;
 mod render;
 
 pub use json::{
-    AccuracyReport, ChainReport, ControlReport, HopJson, ObservationBooks, RecoveryReport,
-    RecoverySummary, RunReport, SharedMemoryReport, StageReport, StageSupervision, StreamsReport,
-    SupervisorReport, REPORT_SCHEMA_VERSION,
+    AccuracyReport, ChainReport, ControlReport, FilterReport, HopJson, ObservationBooks,
+    RecoveryReport, RecoverySummary, RunReport, SharedMemoryReport, StageReport, StageSupervision,
+    StreamsReport, SupervisorReport, REPORT_SCHEMA_VERSION,
 };
 
 use super::monitor::Accuracy;

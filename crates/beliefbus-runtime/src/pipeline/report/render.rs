@@ -97,6 +97,13 @@ impl ReportInput {
             f(a.rmse_state),
             a.beliefs
         ));
+        let health = self.filter_health();
+        if let Some(c) = health.ess_collapses {
+            out.push_str(&format!(
+                "filter: {c} of {} updates collapsed (kept less than the collapse fraction of their effective support, or every weight vanished)\n",
+                health.updates
+            ));
+        }
         if let Some(c) = self
             .stats(StageKind::Filter)
             .filter(|c| c.chain_versions > 0)

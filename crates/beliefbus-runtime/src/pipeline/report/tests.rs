@@ -268,3 +268,60 @@ fn every_reason_list_names_every_variant_in_counter_order() {
         ["lost", "stale", "superseded", "shutdown"]
     );
 }
+
+/// The filter stage's stats of a PF run in which 7 of 400 updates collapsed.
+fn with_collapsing_filter(inp: &mut ReportInput, counted: bool) {
+    let (_, end) = inp
+        .stages
+        .iter_mut()
+        .find(|(k, _)| *k == StageKind::Filter)
+        .unwrap();
+    end.stats = Some(StageStats {
+        stage: StageKind::Filter as u32,
+        processed: 400,
+        ess_collapses: 7,
+        flags: if counted {
+            crate::ipc::stats_flags::COLLAPSES_COUNTED
+        } else {
+            0
+        },
+        ..StageStats::default()
+    });
+}
+
+#[test]
+fn collapsed_filter_steps_are_in_the_json_its_round_trip_and_the_tables() {
+    let mut inp = input();
+    // No filter stats: null collapses, no line.
+    let v = inp.to_json();
+    assert!(v["filter"]["ess_collapses"].is_null());
+    assert_eq!(v["filter"]["updates"], json!(0));
+    assert!(!inp.render().contains("collapsed"));
+    with_collapsing_filter(&mut inp, true);
+    let report = inp.report();
+    assert_eq!(report.filter.ess_collapses, Some(7));
+    assert_eq!(report.filter.updates, 400);
+    let text = serde_json::to_string(&inp.to_json()).unwrap();
+    let parsed: RunReport = serde_json::from_str(&text).unwrap();
+    assert_eq!(parsed.schema_version, REPORT_SCHEMA_VERSION);
+    assert_eq!(parsed, report);
+    assert!(
+        inp.render().contains("filter: 7 of 400 updates collapsed"),
+        "{}",
+        inp.render()
+    );
+    // A Gaussian filter (flag not set) has no collapses to report.
+    with_collapsing_filter(&mut inp, false);
+    assert_eq!(inp.report().filter.ess_collapses, None);
+    assert!(!inp.render().contains("collapsed"));
+}
+
+/// Additive: a report written before the `filter` section parses, with
+/// the section's defaults (so the schema version stays).
+#[test]
+fn a_report_without_the_filter_section_still_parses() {
+    let mut v = input().to_json();
+    v.as_object_mut().unwrap().remove("filter");
+    let parsed: RunReport = serde_json::from_value(v).unwrap();
+    assert_eq!(parsed.filter, FilterReport::default());
+}

@@ -234,6 +234,7 @@ impl Backend {
             FilterBackend::Chain => {
                 let mut c = LiveChainFilter::new(cfg.model()?, f, cfg.refine.max_states, start, t0);
                 c.set_reanchor(cfg.filter.chain.reanchor_ess);
+                c.set_collapse_fraction(cfg.filter.chain.collapse_fraction);
                 c.set_moving_frame(cfg.refine.moving_frame);
                 let stale = &cfg.filter.chain.stale;
                 // The fallback: the chain backend's Gaussian filter (EKF).
@@ -281,6 +282,14 @@ impl Backend {
         match self {
             Backend::Plain(f) => f.belief(),
             Backend::Chain(f) => f.belief(),
+        }
+    }
+    /// Collapsed steps of the filter that publishes (the chain's, not its
+    /// fallback's; None for a Gaussian filter).
+    pub(super) fn ess_collapses(&self) -> Option<u64> {
+        match self {
+            Backend::Plain(f) => f.ess_collapses(),
+            Backend::Chain(f) => Some(f.chain.collapses()),
         }
     }
 }

@@ -324,7 +324,9 @@ pub fn run_with(
                         std: std.as_ref().map(|s| &s[..dims.obs]),
                     };
                     out.status = 0;
-                    match filter.update(&meas, t_in) {
+                    let updated = filter.update(&meas, t_in);
+                    m.ess_collapses = filter.ess_collapses();
+                    match updated {
                         Ok(info) => {
                             out.ess = info.ess;
                             out.log_evidence = info.log_evidence;

@@ -149,11 +149,45 @@ fn filter_loop_publishes_one_belief_per_observation_and_tracks_the_ship() {
         assert_eq!(fin.rejected, 0);
         assert_eq!(fin.dropped, 0);
         assert_eq!(fin.compute.count, n as u64);
+        // The PF counts collapsed updates (none on its own model's data);
+        // the Gaussian filters have none to count.
+        let counted = fin.flags & crate::ipc::stats_flags::COLLAPSES_COUNTED != 0;
+        assert_eq!(counted, backend == "pf", "{backend}");
+        assert_eq!(fin.ess_collapses, 0, "{backend}");
         let hop = fin.hop(Hop::SensorToBelief).unwrap();
         assert!(
             hop.count > 0 && hop.count < n as u64,
             "warm-up excluded: {}",
             hop.count
         );
+    }
+}
+
+/// The stats message carries the backend's collapse count: a PF whose
+/// update meets an observation far in its tail counts it, with the flag
+/// set; an EKF reports none and no flag.
+#[test]
+fn collapsed_updates_reach_the_stats_message() {
+    for (backend, want) in [("pf", Some(1)), ("ekf", None)] {
+        let cfg = test_config(&[
+            &format!("filter.backend={backend}"),
+            "filter.pf.particles=500",
+        ]);
+        let mut f = crate::stage::filter::make_filter(&cfg, 0.0).unwrap();
+        f.predict(0.01, &[0.0; 2][..f.dims().control]).unwrap();
+        let b = f.belief();
+        // Range and bearing far outside the prior's spread.
+        let mut y = [0.0; crate::MAX_OBS];
+        let m = f.dims().obs;
+        crate::model::SdeModel::obs_mean(&cfg.model().unwrap(), &b.mean[..4], &mut y[..m]);
+        y[0] += 50.0;
+        let _ = f.update(&crate::model::Measurement::full(&y[..m]));
+        assert_eq!(f.ess_collapses(), want, "{backend}");
+        let mut metrics = Metrics::new(0, &[], 0);
+        metrics.ess_collapses = f.ess_collapses();
+        let s = metrics.to_stats(&StageIdentity::plain(StageKind::Filter));
+        let counted = s.flags & crate::ipc::stats_flags::COLLAPSES_COUNTED != 0;
+        assert_eq!(counted, want.is_some());
+        assert_eq!(s.ess_collapses, want.unwrap_or(0));
     }
 }

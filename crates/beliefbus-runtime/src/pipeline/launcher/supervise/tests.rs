@@ -291,6 +291,7 @@ fn counters_span_every_incarnation() {
         late: 4,
         controls_received: 5,
         processed_after_warmup: 6,
+        ess_collapses: 9,
         ..StageStats::default()
     };
     a.dropped_by_reason[0] = 2;
@@ -298,6 +299,7 @@ fn counters_span_every_incarnation() {
     s.carry(&a);
     let last = StageStats {
         processed: 7,
+        ess_collapses: 1,
         compute: crate::ipc::Percentiles {
             count: 3,
             ..Default::default()
@@ -314,6 +316,7 @@ fn counters_span_every_incarnation() {
         (8, 10, 12)
     );
     assert_eq!(t.dropped_by_reason[0], 4);
+    assert_eq!(t.ess_collapses, 19);
     // Histograms are the last incarnation's.
     assert_eq!(t.compute.count, 3);
 }
