@@ -24,6 +24,7 @@ pub mod registry;
 pub mod report;
 pub mod ship;
 pub mod ship_control;
+pub mod ship_states;
 pub mod smoothing;
 pub mod vanderpol;
 

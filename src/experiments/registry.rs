@@ -5,8 +5,8 @@
 
 use super::{
     anytime, arm, chain_closed_loop, chain_defaults, changepoint, convergence, decoding,
-    double_slit, himmelblau, inventory, param_estimation, ship, ship_control, smoothing, vanderpol,
-    Experiment,
+    double_slit, himmelblau, inventory, param_estimation, ship, ship_control, ship_states,
+    smoothing, vanderpol, Experiment,
 };
 use beliefbus_core::experiment_params::{p, ParamDoc};
 
@@ -131,6 +131,32 @@ const VANDERPOL: &[ParamDoc] = &[
     p("prior_x2", "0", "prior mean of x2"),
     p("prior_std1", "0.2", "prior standard deviation of x1"),
     p("prior_std2", "0.2", "prior standard deviation of x2"),
+];
+
+const SHIP_STATES: &[ParamDoc] = &[
+    p(
+        "placement",
+        "fixed",
+        "fixed: one chain over the horizon's predictive; even: the same thinned evenly; local: rebuilt around the predicted belief every step",
+    ),
+    p("states", "1000,5000,20000", "chain sizes n swept"),
+    p("kernel", "moment", "moment (moment matching) or gaussian (the paper's)"),
+    p("horizon_s", "5", "length of each run (s)"),
+    p("obs_period_s", "0.01", "time between observations (s)"),
+    p("step_s", "= obs_period_s", "the chain's step tau (s); 0: per-state holding times"),
+    p("knn_c", "1.5", "neighbour count constant c of k = c log n"),
+    p("spread", "2", "local: std inflation of the states' sampling law"),
+    p(
+        "install",
+        "volume",
+        "local: belief on the new states by cell volume or importance weights",
+    ),
+    p(
+        "uniform_fraction",
+        "0.1",
+        "fixed: share of states placed uniformly on the domain",
+    ),
+    p("particles", "100", "particles of the PF"),
 ];
 
 const SHIP: &[ParamDoc] = &[
@@ -432,6 +458,10 @@ pub fn all() -> Vec<Experiment> {
             "chain filter vs PF-100/EKF/UKF on the drifting ship",
             "paper 001 eq. 10-11 (ship tracking)",
             SHIP, ship::run),
+        e("ship-states",
+            "chain-filter error vs states on the ship, one factor at a time (placement, kernel, step), PF-100 on the same records",
+            "paper 001 Fig. 3 (100 states)",
+            SHIP_STATES, ship_states::run),
         e("param-estimation",
             "joint state/parameter estimation: chain filter vs PF-100",
             "paper 001 eq. 13",
@@ -496,7 +526,7 @@ mod tests {
     #[test]
     fn every_entry_is_documented_once() {
         let all = all();
-        assert_eq!(all.len(), 21, "the registry lost or gained an entry");
+        assert_eq!(all.len(), 22, "the registry lost or gained an entry");
         for e in &all {
             assert!(
                 !e.reproduces.is_empty() && !e.about.is_empty(),
