@@ -12,6 +12,14 @@
 //! with F̂^j = φ^j + ½ (x − μ^j)ᵀ H^j (x − μ^j). The normalising constants
 //! of F^j are the same for every particle (det Σ₁ does not depend on the
 //! heading, see [`crate::vehicle`]), so they cancel.
+//!
+//! Should Newton fail for a particle (a non-finite iterate: for a particle
+//! far from the data, F^j can have a second basin at a landmark, where the
+//! bearing is undefined and the Hessian blows up, and Newton may walk into
+//! it), that particle falls back to the motion-model
+//! proposal with the likelihood weight of standard MCL: the proposal is still
+//! a function of the particle's own past, so the weights stay exact. The
+//! fallbacks are counted.
 
 use super::newton::{minimise, NewtonSettings, Objective};
 use super::particles::ParticleSet;
@@ -19,7 +27,7 @@ use super::Localizer;
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
 use crate::geometry::Point;
-use crate::laser::{LaserNoise, Observation};
+use crate::laser::{term_cost, LaserNoise, Observation};
 use crate::vehicle::{Control, StepNoise, Ute};
 use beliefbus_core::rng::SimRng;
 
@@ -30,6 +38,8 @@ pub struct ImplicitMcl {
     pub newton: NewtonSettings,
     /// Newton steps taken so far (all particles, all scans).
     pub newton_iters: usize,
+    /// Particle updates that fell back to the motion-model proposal.
+    pub fallbacks: usize,
 }
 
 impl ImplicitMcl {
@@ -43,6 +53,7 @@ impl ImplicitMcl {
             set: ParticleSet::new(m, ess_threshold)?,
             newton,
             newton_iters: 0,
+            fallbacks: 0,
         })
     }
 }
@@ -56,6 +67,9 @@ impl Localizer for ImplicitMcl {
     }
     fn particles_mut(&mut self) -> &mut ParticleSet {
         &mut self.set
+    }
+    fn newton_stats(&self) -> Option<(usize, usize)> {
+        Some((self.newton_iters, self.fallbacks))
     }
 
     fn update(
@@ -77,17 +91,27 @@ impl Localizer for ImplicitMcl {
                 map,
                 laser: *laser,
             };
-            let m = minimise(&obj, &self.newton, step)?;
-            self.newton_iters += m.iters;
             let xi = normal3(rng);
-            let y =
-                m.l.tr_solve_lower_triangular(&xi)
-                    .ok_or(LocalizationError::NonFinite {
-                        what: "linear map",
-                        step,
-                    })?;
-            *x = m.mu + y;
-            *lw += 0.5 * xi.dot(&xi) - obj.value(x) - m.log_det_l;
+            let sample = minimise(&obj, &self.newton, step).ok().and_then(|m| {
+                self.newton_iters += m.iters;
+                let y = m.l.tr_solve_lower_triangular(&xi)?;
+                let xn = m.mu + y;
+                let inc = 0.5 * xi.dot(&xi) - obj.value(&xn) - m.log_det_l;
+                inc.is_finite().then_some((xn, inc))
+            });
+            match sample {
+                Some((xn, inc)) => {
+                    *x = xn;
+                    *lw += inc;
+                }
+                None => {
+                    self.fallbacks += 1;
+                    *x = obj.f + noise.draw(x[2], &xi);
+                    for o in obs {
+                        *lw -= term_cost(x, map[o.landmark], o, laser);
+                    }
+                }
+            }
         }
         self.set.reweight(step, rng)?;
         Ok(())

@@ -51,6 +51,11 @@ pub trait Localizer {
         rng: &mut SimRng,
     ) -> Result<(), LocalizationError>;
 
+    /// Newton steps and motion-model fallbacks so far (implicit MCL only).
+    fn newton_stats(&self) -> Option<(usize, usize)> {
+        None
+    }
+
     /// A step without laser data: every particle moves by the motion model.
     fn predict(&mut self, ute: &Ute, u: Control, noise: &StepNoise, rng: &mut SimRng) {
         for x in self.particles_mut().x.iter_mut() {
