@@ -44,9 +44,12 @@ pub fn experiments() -> Vec<super::Experiment> {
 
 const COLORS: [RGBColor; 2] = [RGBColor(214, 39, 40), RGBColor(31, 119, 180)];
 
+/// One method's points: (error %, time per update ms, samples).
+type Curve = (String, Vec<(f64, f64, u64)>);
+
 /// (error %, time per update ms) of each method's rows, in sample order.
-fn curves(rows: &[Row]) -> Vec<(String, Vec<(f64, f64, u64)>)> {
-    let mut out: Vec<(String, Vec<(f64, f64, u64)>)> = Vec::new();
+fn curves(rows: &[Row]) -> Vec<Curve> {
+    let mut out: Vec<Curve> = Vec::new();
     for r in rows {
         let (Some(e), Some(t)) = (r.get("error_pct"), r.get("time_ms")) else {
             continue;
