@@ -17,6 +17,7 @@ pub mod decoding;
 pub mod double_slit;
 pub mod himmelblau;
 pub mod inventory;
+pub mod localization;
 pub mod param_estimation;
 pub mod pi_common;
 pub mod refine_sim;

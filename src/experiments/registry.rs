@@ -5,7 +5,8 @@
 
 use super::{
     anytime, arm, chain_closed_loop, chain_defaults, changepoint, convergence, decoding,
-    double_slit, himmelblau, inventory, param_estimation, ship, ship_control, ship_states,
+    double_slit, himmelblau, inventory, localization, param_estimation, ship, ship_control,
+    ship_states,
     smoothing, vanderpol, Experiment,
 };
 use beliefbus_core::experiment_params::{p, ParamDoc};
@@ -514,6 +515,8 @@ pub fn all() -> Vec<Experiment> {
     .into_iter()
     // Paper 002, from the beliefbus-changepoint crate.
     .chain(changepoint::experiments())
+    // Paper 003 sec. 4.1, from the beliefbus-localization crate.
+    .chain(localization::experiments())
     .collect()
 }
 
@@ -526,7 +529,7 @@ mod tests {
     #[test]
     fn every_entry_is_documented_once() {
         let all = all();
-        assert_eq!(all.len(), 22, "the registry lost or gained an entry");
+        assert_eq!(all.len(), 23, "the registry lost or gained an entry");
         for e in &all {
             assert!(
                 !e.reproduces.is_empty() && !e.about.is_empty(),
