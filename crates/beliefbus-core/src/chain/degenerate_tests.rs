@@ -1,16 +1,13 @@
-//! The degenerate kernel against its moment equations, on chains of a
-//! double integrator with noise on the velocity only.
+//! Chains of a double integrator with noise on the velocity only: row
+//! diagnostics, the anisotropic metric, and the filter against Kalman.
 
-use super::*;
 use crate::chain::diagnostics::{row_fit, row_report};
-use crate::chain::kernel::{holding_time, KernelWork, LocalDyn};
 use crate::chain::metric::degenerate_scale;
 use crate::chain::metric::ScaledCoords;
 use crate::chain::{Chain, ChainConfig, Sampler};
 use crate::model::linear::LinearSde;
 use crate::model::Bounds;
 use nalgebra::DMatrix;
-use rand::RngExt;
 
 /// ẍ = −x − 0.5 ẋ + σ ẇ (a double integrator under PD feedback), noise
 /// on the velocity only.
@@ -130,94 +127,20 @@ fn measure_gap_to_kalman_over_n_and_scale() {
 }
 
 #[test]
-fn degenerate_kernel_meets_the_matched_moments_and_keeps_the_free_block_small() {
-    // d = 2, z = (x, v), F Fᵀ = diag(0, σ²): 40 neighbours in the unit
-    // disc. The row must meet Σp = 1, the mean, E[Δv²] and E[ΔxΔv]
-    // exactly, and its x-variance must be below what the same equations
-    // give on all neighbours without the ordering (the plain NNLS pick).
-    let mut rng = crate::rng::stream(5, 0);
-    let d = 2;
-    let mut dz = vec![];
-    while dz.len() < 80 {
-        let (x, y) = (rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
-        if x * x + y * y <= 1.0 {
-            dz.push(x);
-            dz.push(y);
-        }
-    }
-    let f = [0.3, -0.2];
-    let ff = [0.0, 0.0, 0.0, 0.5];
-    assert_eq!(noise_free_mask(2, &ff), Some(1));
-    let dynl = LocalDyn {
-        f: &f,
-        ff: &ff,
-        chol: None,
-    };
-    let dt = holding_time(1.0, 0.5, 0.36, 2.0 * (d as f64 + 2.0), 2.0);
-    let mean = [f[0] * dt, f[1] * dt];
-    let mut work = KernelWork::new();
-    let mut p = vec![0.0; 40];
-    let fit = crate::chain::kernel::moment_matched(d, &dz, dt, 1.0, &dynl, &mut work, &mut p);
-    assert_eq!(fit.outcome, KernelOutcome::Exact);
-    assert!((p.iter().sum::<f64>() - 1.0).abs() < 1e-12);
-    assert!(p.iter().all(|v| *v >= 0.0));
-    let q = dt / fit.holding; // 1 − p₀
-    let mom = |a: usize, b: usize| {
-        (0..40)
-            .map(|j| p[j] * q * dz[2 * j + a] * dz[2 * j + b])
-            .sum::<f64>()
-    };
-    let m1 = |a: usize| (0..40).map(|j| p[j] * q * dz[2 * j + a]).sum::<f64>();
-    for a in 0..2 {
-        assert!((m1(a) - mean[a]).abs() < 1e-9, "mean {a}");
-    }
-    assert!((mom(1, 1) - (0.5 * dt + mean[1] * mean[1])).abs() < 1e-9);
-    assert!((mom(0, 1) - mean[0] * mean[1]).abs() < 1e-9);
-    let var_x = mom(0, 0) - mean[0] * mean[0];
-    // The same equalities solved by NNLS over the neighbours in their
-    // given order (every column offered at once).
-    let m = equality_rows(d, 1);
-    let mut a = vec![0.0; m * 41];
-    a[0] = 1.0;
-    for j in 0..40 {
-        let (x, v) = (dz[2 * j], dz[2 * j + 1]);
-        a[(j + 1) * m..(j + 2) * m].copy_from_slice(&[1.0, x, v, x * v, v * v]);
-    }
-    let b = [
-        1.0,
-        mean[0],
-        mean[1],
-        mean[0] * mean[1],
-        0.5 * dt + mean[1] * mean[1],
-    ];
-    let mut x = vec![0.0; 41];
-    let res = crate::chain::nnls::Nnls::new().solve(&a, m, 41, &b, &mut x);
-    assert!(res < 1e-9);
-    let plain: f64 = (0..40)
-        .map(|j| x[j + 1] * dz[2 * j] * dz[2 * j])
-        .sum::<f64>()
-        - mean[0] * mean[0];
-    eprintln!(
-        "x-variance per Δt: ordered {:.4}, plain {:.4}",
-        var_x / dt,
-        plain / dt
-    );
-    assert!(var_x < 0.5 * plain, "{var_x} vs {plain}");
-}
-
-#[test]
-fn every_row_of_a_degenerate_chain_is_exact_or_counted_and_free_diffusion_falls_as_one_over_scale_squared(
-) {
+fn every_row_of_a_degenerate_chain_is_exact_or_counted_and_its_errors_shrink() {
+    // Every row either meets its matched moments (mean, every second
+    // moment with a noisy coordinate) or is counted by the kernel; the
+    // residuals and the noise-free block's numerical diffusion shrink
+    // with n, and the diffusion with the metric's scale λ.
     let m = damped_double_integrator(0.5, 0.1);
-    let mut free = vec![];
-    for lambda in [2.0, 8.0] {
+    let report = |lambda: f64, n: usize| {
         let sm = ScaledCoords::new(m.clone(), &[lambda, 1.0]).unwrap();
-        let mut rng = crate::rng::stream(3, 4000);
+        let mut rng = crate::rng::stream(3, n as u64);
         let c = Chain::sample_batch(
             &sm,
             ChainConfig::moment_matched(2),
             &Sampler::Uniform,
-            4000,
+            n,
             &mut rng,
         )
         .unwrap();
@@ -225,38 +148,42 @@ fn every_row_of_a_degenerate_chain_is_exact_or_counted_and_free_diffusion_falls_
         let mut inexact = 0;
         for i in 0..c.len() {
             if let Some(fit) = row_fit(&c, i) {
-                let exact = fit.mean_residual <= 1e-6 && fit.moment_residual <= 1e-6;
-                inexact += usize::from(!exact);
-                // Exact rows miss by rounding only.
-                if exact {
-                    assert!(
-                        fit.mean_residual < 1e-8 && fit.moment_residual < 1e-8,
-                        "{i}: {fit:?}"
-                    );
-                }
+                inexact += usize::from(fit.mean_residual > 1e-6 || fit.moment_residual > 1e-6);
             }
         }
-        eprintln!("λ={lambda}: {rep:?}");
         assert_eq!(rep.exact + inexact + rep.absorbing, rep.rows);
-        // Every inexact row is one the kernel counted as least squares.
         assert!(
-            inexact as u64 <= rep.least_squares,
+            inexact as u64 <= rep.least_squares + rep.gaussian,
             "{inexact} inexact, {rep:?}"
         );
-        assert!(rep.exact > rep.rows / 2, "{rep:?}");
-        // Numerical diffusion in original units: scaled / λ².
-        free.push(rep.mean_free_diffusion_rel / (lambda * lambda));
-    }
-    // 1/λ² law: 16× from λ = 2 to 8; allow the neighbour geometry's drift.
-    assert!(free[0] > 8.0 * free[1], "{free:?}");
+        eprintln!("λ={lambda} n={n}: {rep:?}");
+        // free diffusion in original units: scaled / λ²
+        (rep, rep.mean_free_diffusion_rel / (lambda * lambda))
+    };
+    let (small, free_small) = report(4.0, 1000);
+    let (large, free_large) = report(4.0, 8000);
+    let (_, free_iso) = report(1.0, 8000);
+    assert!(
+        large.inexact_mean_residual < 0.7 * small.inexact_mean_residual,
+        "{small:?} {large:?}"
+    );
+    assert!(
+        large.inexact_moment_residual < 0.9 * small.inexact_moment_residual,
+        "{small:?} {large:?}"
+    );
+    assert!(free_large < 0.7 * free_small, "{free_small} → {free_large}");
+    assert!(
+        free_iso > 4.0 * free_large,
+        "isotropic {free_iso} vs λ = 4 {free_large}"
+    );
 }
 
 #[test]
 fn chain_filter_on_a_degenerate_model_converges_to_kalman_with_the_scaled_metric() {
     // Advected chains (τ = the observation period) on the damped double
     // integrator, noise on v only, λ = degenerate_scale(n): the gap to the
-    // exact Kalman mean falls with n; the isotropic chain (λ = 1) stays
-    // several Kalman standard deviations away at every n.
+    // exact Kalman mean falls with n, and at 4000 states it is well below
+    // the isotropic chain's (λ = 1).
     let avg = |n: usize, lambda: f64| {
         let cfg = ChainConfig::moment_matched(2).with_step(0.05);
         (0..4)
@@ -272,7 +199,7 @@ fn chain_filter_on_a_degenerate_model_converges_to_kalman_with_the_scaled_metric
     let iso = avg(4000, 1.0);
     let (_, kstd) = gap_to_kalman(500, 20, 1.0, ChainConfig::moment_matched(2).with_step(0.05));
     eprintln!("scaled gaps {gaps:?}, isotropic at 4000 {iso:.4}, Kalman x std {kstd:.4}");
-    assert!(gaps[1] < 0.7 * gaps[0], "{gaps:?}");
-    assert!(gaps[1] < kstd, "{gaps:?} vs Kalman std {kstd}");
-    assert!(iso > 2.0 * gaps[1], "isotropic {iso} vs {gaps:?}");
+    assert!(gaps[1] < 0.3 * gaps[0], "{gaps:?}");
+    assert!(gaps[1] < 0.5 * kstd, "{gaps:?} vs Kalman std {kstd}");
+    assert!(iso > 1.5 * gaps[1], "isotropic {iso} vs {gaps:?}");
 }

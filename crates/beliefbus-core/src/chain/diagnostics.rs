@@ -344,6 +344,8 @@ pub struct RowReport {
     pub exact: usize,
     /// Rows the kernel solved as least squares (its counter).
     pub least_squares: u64,
+    /// Rows of the Gaussian kernel or its fallback (its counter).
+    pub gaussian: u64,
     /// Mean scaled residuals of the inexact rows (0 when none).
     pub inexact_mean_residual: f64,
     pub inexact_moment_residual: f64,
@@ -358,6 +360,7 @@ pub fn row_report(chain: &Chain) -> RowReport {
     let mut rep = RowReport {
         rows: chain.len(),
         least_squares: chain.stats().least_squares,
+        gaussian: chain.stats().gaussian,
         ..RowReport::default()
     };
     let (mut inexact, mut fd_sum, mut dn_sum) = (0usize, 0.0, 0.0);

@@ -53,9 +53,9 @@ pub const MEAN_ROW_WEIGHT: f64 = 4.0;
 /// add as little variance as possible rather than trade drift for variance.
 pub const ADVECTED_MEAN_ROW_WEIGHT: f64 = 30.0;
 /// Weight of the Σ p = 1 row in NNLS.
-pub(super) const SUM_ROW_WEIGHT: f64 = 100.0;
+const SUM_ROW_WEIGHT: f64 = 100.0;
 /// Feasibility tolerance on the scaled equations.
-pub(super) const FEAS_TOL: f64 = 1e-9;
+const FEAS_TOL: f64 = 1e-9;
 
 /// The transition kernel used by `ConnectState`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -103,14 +103,12 @@ pub struct KernelWork {
     logw: Vec<f64>,
     /// Δz of [`gaussian_gather_at`] in dimensions without a compiled form.
     dz: Vec<f64>,
-    pub(super) a: Vec<f64>,
-    pub(super) b: Vec<f64>,
+    a: Vec<f64>,
+    b: Vec<f64>,
     prior: Vec<f64>,
-    pub(super) x: Vec<f64>,
-    pub(super) nnls: Nnls,
+    x: Vec<f64>,
+    nnls: Nnls,
     minc: MinChange,
-    /// Neighbour order of the degenerate kernel ([`super::degenerate`]).
-    pub(super) order: Vec<(f64, u32)>,
 }
 
 impl KernelWork {
@@ -124,7 +122,6 @@ impl KernelWork {
             x: vec![0.0; MAX_COLS],
             nnls: Nnls::new(),
             minc: MinChange::new(),
-            order: Vec::with_capacity(256),
         }
     }
 }
@@ -391,22 +388,6 @@ pub fn moment_matched_at(
     work: &mut KernelWork,
     p: &mut [f64],
 ) -> MomentFit {
-    if dynl.chol.is_none() {
-        if let Some(free) = super::degenerate::noise_free_mask(d, dynl.ff) {
-            return super::degenerate::moment_matched_degenerate(
-                d,
-                dz,
-                mean,
-                dt,
-                r,
-                mean_weight,
-                dynl.ff,
-                free,
-                work,
-                p,
-            );
-        }
-    }
     let k = dz.len() / d;
     debug_assert!(k <= MAX_LP_NEIGHBOURS);
     let nsec = d * (d + 1) / 2;

@@ -22,6 +22,9 @@
 //! - time-equalised chain (eq. 3.8–3.9) with exponential backup —
 //!   [`equalize`];
 //! - local-consistency diagnostics (eq. 2.6–2.7) — [`diagnostics`];
+//! - singular F Fᵀ with noise-free coordinates: the degenerate
+//!   moment-matching kernel — [`degenerate`] — and the anisotropic metric
+//!   that makes it consistent — [`metric`];
 //! - flat CSR storage and snapshot views — [`storage`].
 
 pub mod build;

@@ -235,6 +235,13 @@ impl Backend {
                 let mut c = LiveChainFilter::new(cfg.model()?, f, cfg.refine.max_states, start, t0);
                 c.set_reanchor(cfg.filter.chain.reanchor_ess);
                 c.set_moving_frame(cfg.refine.moving_frame);
+                if !cfg.refine.reference_control.is_empty() {
+                    c.set_reference_control(&cfg.refine.reference_control)
+                        .map_err(|e| StageError::Build {
+                            what: "chain filter",
+                            reason: e.to_string(),
+                        })?;
+                }
                 let stale = &cfg.filter.chain.stale;
                 // The fallback: the chain backend's Gaussian filter (EKF).
                 let fallback = if stale.enabled {
