@@ -114,6 +114,9 @@ fn chain_run(m: &PlanarQuadrotor, rec: &Record, n: usize, lambda: f64, seed: u64
     lf.set_reference_control(&m.hover()).unwrap();
     let mut cfg = ChainConfig::moment_matched(6).with_near(NearRule::Knn { c: 4.0 });
     cfg.control[..2].copy_from_slice(&m.hover());
+    if std::env::var("QR_ADVECTED").is_ok() {
+        cfg = cfg.with_step(DT);
+    }
     let fb = FrameBuild {
         inflate: 2.0,
         uniform_fraction: 0.0,
@@ -123,6 +126,7 @@ fn chain_run(m: &PlanarQuadrotor, rec: &Record, n: usize, lambda: f64, seed: u64
     };
     let mut rng = crate::rng::stream(seed, 9);
     let publish = 20;
+    let trace = std::env::var("QR_TRACE").is_ok();
     let mut built = 0.0;
     // The versions are refine's work (another process); counted apart.
     let (rmse, cpu) = {
@@ -156,6 +160,14 @@ fn chain_run(m: &PlanarQuadrotor, rec: &Record, n: usize, lambda: f64, seed: u64
             let e2 = (b.mean[0] / lambda - rec.truth[k][0]).powi(2)
                 + (b.mean[1] / lambda - rec.truth[k][1]).powi(2);
             se += if e2.is_finite() { e2 } else { 1e6 };
+            if trace && k % 10 == 0 {
+                let tr = &rec.truth[k];
+                eprintln!(
+                    "k {k}: est {:+.3} {:+.3} {:+.3} {:+.3} {:+.3} {:+.3} truth {:+.3} {:+.3} {:+.3} {:+.3} {:+.3} {:+.3} sd θ {:.3} ω {:.3}",
+                    b.mean[0] / lambda, b.mean[1] / lambda, b.mean[2] / lambda, b.mean[3], b.mean[4], b.mean[5],
+                    tr[0], tr[1], tr[2], tr[3], tr[4], tr[5], b.cov_at(2, 2).sqrt() / lambda, b.cov_at(5, 5).sqrt()
+                );
+            }
         }
         let cpu = (clock_ns() - c0) as f64 * 1e-9 - built;
         ((se / STEPS as f64).sqrt(), cpu)

@@ -151,9 +151,10 @@ impl SdeJacobians for PlanarQuadrotor {
         jac[4 + 2 * 6] = -a * x[2].sin();
     }
     fn obs_jacobian(&self, _x: &[f64], jac: &mut [f64]) {
+        // m × d column-major: jac[row + col·2]
         jac[..12].fill(0.0);
         jac[0] = 1.0;
-        jac[1 + 6] = 1.0;
+        jac[1 + 2] = 1.0;
     }
 }
 
@@ -172,6 +173,19 @@ mod tests {
         fd_drift_jacobian(&m, &x, &u, &mut b);
         for i in 0..36 {
             assert!((a[i] - b[i]).abs() < 1e-6, "{i}: {} vs {}", a[i], b[i]);
+        }
+    }
+
+    #[test]
+    fn observation_jacobian_is_the_position_selector() {
+        let m = PlanarQuadrotor::new(PlanarQuadrotorParams::default()).unwrap();
+        let mut j = [0.0; 12];
+        m.obs_jacobian(&[0.3, -0.2, 0.4, 1.0, -0.5, 0.7], &mut j);
+        // ∂g_r/∂x_c at [r + 2c]
+        for r in 0..2 {
+            for c in 0..6 {
+                assert_eq!(j[r + 2 * c], f64::from(u8::from(r == c)), "({r}, {c})");
+            }
         }
     }
 
