@@ -176,9 +176,22 @@ pub fn simulate<M: SdeModel>(
     max_dt: f64,
     rng: &mut SimRng,
 ) -> Record {
+    let u = vec![0.0; model.dims().control];
+    simulate_under(model, x0, &u, dt, steps, max_dt, rng)
+}
+
+/// [`simulate`] with the control `u` held (a hover thrust, a cruise).
+pub fn simulate_under<M: SdeModel>(
+    model: &M,
+    x0: &[f64],
+    u: &[f64],
+    dt: f64,
+    steps: usize,
+    max_dt: f64,
+    rng: &mut SimRng,
+) -> Record {
     let dims = model.dims();
     let (d, m) = (dims.state, dims.obs);
-    let u = vec![0.0; dims.control];
     let mut x = x0.to_vec();
     let mut rec = Record {
         times: Vec::with_capacity(steps),
@@ -188,7 +201,7 @@ pub fn simulate<M: SdeModel>(
     rec.truth.extend_from_slice(&x);
     let mut y = vec![0.0; m];
     for k in 1..=steps {
-        em_integrate(model, &mut x, &u, dt, max_dt, rng);
+        em_integrate(model, &mut x, u, dt, max_dt, rng);
         model.bounds().project(&mut x);
         simulate_observation(model, &x, rng, &mut y);
         rec.times.push(k as f64 * dt);
@@ -240,11 +253,23 @@ pub fn run_filter_every(
     dims_err: Option<usize>,
     every: usize,
 ) -> RunResult {
+    let u = vec![0.0; f.dims().control];
+    run_filter_under(f, rec, &u, dims_err, every)
+}
+
+/// [`run_filter_every`] with the control `u` the record was simulated
+/// under ([`simulate_under`]) passed to every prediction.
+pub fn run_filter_under(
+    f: &mut dyn BayesFilter,
+    rec: &Record,
+    u: &[f64],
+    dims_err: Option<usize>,
+    every: usize,
+) -> RunResult {
     let every = every.max(1);
     let d = f.dims().state;
     let de = dims_err.unwrap_or(d);
     let m = f.dims().obs;
-    let u = vec![0.0; f.dims().control];
     let mut err_sum = 0.0;
     let mut sq_sum = 0.0;
     let mut diverged = false;
@@ -252,7 +277,7 @@ pub fn run_filter_every(
     let c0 = crate::rt::clock::thread_cpu_ns();
     for (k, &t) in rec.times.iter().enumerate() {
         let y = &rec.ys[k * m..(k + 1) * m];
-        if f.predict(t, &u).is_err() {
+        if f.predict(t, u).is_err() {
             diverged = true;
         }
         if (k + 1) % every == 0 {
@@ -280,19 +305,24 @@ pub fn run_filter_every(
 /// The live chain filter of a pipeline config, as the filter stage builds
 /// it: the config's filter backend answers (from `prior` at t = 0) until
 /// the first chain version is installed, with buffers for
-/// `refine.max_states` states. Callers set reanchoring, frame and tuning.
+/// `refine.max_states` states, taking controls relative to
+/// `refine.reference_control`. Callers set reanchoring, frame and tuning.
 pub fn live_chain_filter<M: SdeModel>(
     model: M,
     cfg: &crate::pipeline::PipelineConfig,
     prior: &Gaussian,
 ) -> Result<crate::filter::live_chain::LiveChainFilter<M, Vec<u64>>> {
-    Ok(crate::filter::live_chain::LiveChainFilter::new(
+    let mut f = crate::filter::live_chain::LiveChainFilter::new(
         model,
         crate::stage::filter::make_filter(cfg, 0.0)?,
         cfg.refine.max_states,
         prior,
         0.0,
-    ))
+    );
+    if !cfg.refine.reference_control.is_empty() {
+        f.set_reference_control(&cfg.refine.reference_control)?;
+    }
+    Ok(f)
 }
 
 /// Mean and 95 % half-width (1.96 standard errors) of the per-run error

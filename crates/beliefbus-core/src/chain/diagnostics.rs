@@ -23,6 +23,7 @@
 //! restricted to states farther than `margin · r(z)` from ∂S.
 
 use super::build::Chain;
+use super::degenerate::{is_free, noise_free_mask};
 use super::linalg::sym_spectral_norm;
 use crate::model::Bounds;
 use crate::MAX_STATE;
@@ -217,6 +218,177 @@ fn report_with(
         mean_radius: r_sum / u,
         mean_out_degree: chain.mean_out_degree(),
     }
+}
+
+/// How one row meets its moment equations (the degenerate kernel's split,
+/// [`super::degenerate`]): the mean and every second moment with a noisy
+/// coordinate are the matched part; the covariance of the noise-free block
+/// per unit holding time is the row's numerical diffusion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RowFit {
+    /// ‖E[Δξ] − f Δt‖ / r.
+    pub mean_residual: f64,
+    /// Largest |E[Δξ_i Δξ_c] − FFᵀ_ic Δt − f_i f_c Δt² q| / r² over the
+    /// matched pairs, q ∈ [0, 1] the fitted jump probability of the
+    /// kernel with self-loop (see [`row_fit`]).
+    pub moment_residual: f64,
+    /// ‖Cov[Δξ_x] / Δt‖₂ over the noise-free block (0 without one).
+    pub free_diffusion: f64,
+}
+
+/// Scaled residual below which a row counts as exact (the kernel solves
+/// to 1e-9; dropping entries below `MIN_PROB` and renormalising moves the
+/// moments by ~1e-12 relative).
+pub const EXACT_ROW_TOL: f64 = 1e-6;
+
+/// The row fit of slot `i` (None for an absorbing state).
+pub fn row_fit(chain: &Chain, i: usize) -> Option<RowFit> {
+    let d = chain.dim();
+    let dt = chain.holding()[i];
+    let r = chain.radius()[i];
+    if !dt.is_finite() || !(r > 0.0) {
+        return None;
+    }
+    let (m1, m2) = row_moments(chain, i);
+    let f = chain.drift_at(i);
+    let ff = chain.diffusion_at(i);
+    let free = noise_free_mask(d, ff).unwrap_or(0);
+    let mean_residual = (0..d)
+        .map(|a| (m1[a] - f[a] * dt).powi(2))
+        .sum::<f64>()
+        .sqrt()
+        / r;
+    // A kernel meeting its equations over dt with self-loop p₀ is stored
+    // without the loop: Δt = dt/(1 − p₀) and E[ΔξΔξᵀ] = FFᵀΔt + ffᵀΔt²q,
+    // q = 1 − p₀ ∈ (0, 1] unknown. Fit q by least squares over the
+    // matched pairs, then measure what remains.
+    let (mut num, mut den) = (0.0, 0.0);
+    for a in 0..d {
+        for b in a..d {
+            if is_free(free, a) && is_free(free, b) {
+                continue;
+            }
+            let g = f[a] * f[b] * dt * dt;
+            num += g * (m2[a + b * d] - ff[a + b * d] * dt);
+            den += g * g;
+        }
+    }
+    let q = if den > 0.0 {
+        (num / den).clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    let mut moment_residual = 0.0f64;
+    let mut cov = [0.0; MAX_STATE * MAX_STATE];
+    let mut nf = 0;
+    let mut idx = [0usize; MAX_STATE];
+    for a in 0..d {
+        if is_free(free, a) {
+            idx[nf] = a;
+            nf += 1;
+        }
+        for b in a..d {
+            if is_free(free, a) && is_free(free, b) {
+                continue;
+            }
+            let want = ff[a + b * d] * dt + f[a] * f[b] * dt * dt * q;
+            moment_residual = moment_residual.max((m2[a + b * d] - want).abs() / (r * r));
+        }
+    }
+    for p in 0..nf {
+        for q in 0..nf {
+            let (a, b) = (idx[p], idx[q]);
+            cov[p + q * nf] = (m2[a + b * d] - m1[a] * m1[b]) / dt;
+        }
+    }
+    let free_diffusion = if nf > 0 {
+        sym_spectral_norm(&cov[..nf * nf], nf)
+    } else {
+        0.0
+    };
+    Some(RowFit {
+        mean_residual,
+        moment_residual,
+        free_diffusion,
+    })
+}
+
+fn row_moments(chain: &Chain, i: usize) -> ([f64; MAX_STATE], [f64; MAX_STATE * MAX_STATE]) {
+    let d = chain.dim();
+    let z = chain.state(i);
+    let (cols, probs) = chain.row(i);
+    let mut m1 = [0.0; MAX_STATE];
+    let mut m2 = [0.0; MAX_STATE * MAX_STATE];
+    for (&c, &p) in cols.iter().zip(probs) {
+        let zc = chain.state(c as usize);
+        for a in 0..d {
+            let da = zc[a] - z[a];
+            m1[a] += p * da;
+            for b in 0..d {
+                m2[a + b * d] += p * da * (zc[b] - z[b]);
+            }
+        }
+    }
+    (m1, m2)
+}
+
+/// Per-version summary of the rows: how many meet their matched moment
+/// equations exactly, how far the others miss, the noise-free block's
+/// numerical diffusion, and the kernel's own least-squares count.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RowReport {
+    pub rows: usize,
+    /// Absorbing rows (no neighbour, or no admissible move).
+    pub absorbing: usize,
+    /// Rows with both residuals ≤ [`EXACT_ROW_TOL`].
+    pub exact: usize,
+    /// Rows the kernel solved as least squares (its counter).
+    pub least_squares: u64,
+    /// Rows of the Gaussian kernel or its fallback (its counter).
+    pub gaussian: u64,
+    /// Mean scaled residuals of the inexact rows (0 when none).
+    pub inexact_mean_residual: f64,
+    pub inexact_moment_residual: f64,
+    /// Mean and largest numerical diffusion of the noise-free block,
+    /// relative to the mean ‖FFᵀ‖ (0 for a non-degenerate chain).
+    pub mean_free_diffusion_rel: f64,
+    pub max_free_diffusion_rel: f64,
+}
+
+/// [`RowReport`] over every row of `chain`.
+pub fn row_report(chain: &Chain) -> RowReport {
+    let mut rep = RowReport {
+        rows: chain.len(),
+        least_squares: chain.stats().least_squares,
+        gaussian: chain.stats().gaussian,
+        ..RowReport::default()
+    };
+    let (mut inexact, mut fd_sum, mut dn_sum) = (0usize, 0.0, 0.0);
+    for i in 0..chain.len() {
+        let Some(fit) = row_fit(chain, i) else {
+            rep.absorbing += 1;
+            continue;
+        };
+        if fit.mean_residual <= EXACT_ROW_TOL && fit.moment_residual <= EXACT_ROW_TOL {
+            rep.exact += 1;
+        } else {
+            inexact += 1;
+            rep.inexact_mean_residual += fit.mean_residual;
+            rep.inexact_moment_residual += fit.moment_residual;
+        }
+        fd_sum += fit.free_diffusion;
+        dn_sum += sym_spectral_norm(chain.diffusion_at(i), chain.dim());
+        rep.max_free_diffusion_rel = rep.max_free_diffusion_rel.max(fit.free_diffusion);
+    }
+    if inexact > 0 {
+        rep.inexact_mean_residual /= inexact as f64;
+        rep.inexact_moment_residual /= inexact as f64;
+    }
+    let used = (rep.rows - rep.absorbing).max(1) as f64;
+    let dn = (dn_sum / used).max(1e-300);
+    rep.mean_free_diffusion_rel = fd_sum / used / dn;
+    rep.max_free_diffusion_rel /= dn;
+    rep
 }
 
 #[cfg(test)]

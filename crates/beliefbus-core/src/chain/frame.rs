@@ -10,7 +10,7 @@ use crate::belief::Gaussian;
 use crate::chain::{Chain, ChainConfig, Sampler, TimeEqualized};
 use crate::model::{Bounds, Dims, SdeJacobians, SdeModel};
 use crate::rng::SimRng;
-use crate::{MAX_CONTROL, MAX_STATE};
+use crate::MAX_STATE;
 
 /// The model in the frame that moves at the constant velocity `w`:
 /// drift f(x, u) − w (the moving-frame chains, `refine.moving_frame`).
@@ -107,8 +107,9 @@ pub fn sampler_around<M: SdeModel + ?Sized>(
 
 /// A moving-frame version (`refine.moving_frame`): a batch chain (Alg. 2.1)
 /// of `n` states drawn around `belief` ([`sampler_around`]), built for
-/// f(x, u₀) − w with w the mean uncontrolled drift of its states (the
-/// filter computes the same w from the snapshot,
+/// f(x, u₀) − w with w the mean drift of its states under the reference
+/// control u₀ = `p.chain.control` (the filter computes the same w from the
+/// snapshot and its own u₀,
 /// [`crate::filter::live_chain::frame_of`]), and δ fitted to its holding
 /// times.
 pub fn build_framed<M: SdeModel + ?Sized>(
@@ -131,7 +132,7 @@ pub fn build_framed<M: SdeModel + ?Sized>(
     let mut w = [0.0; MAX_STATE];
     let mut f = [0.0; MAX_STATE];
     for x in pts.chunks_exact(d) {
-        model.drift(x, &[0.0; MAX_CONTROL][..nu], &mut f[..d]);
+        model.drift(x, &p.chain.control[..nu], &mut f[..d]);
         for a in 0..d {
             w[a] += f[a];
         }

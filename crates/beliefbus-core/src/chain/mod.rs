@@ -22,15 +22,20 @@
 //! - time-equalised chain (eq. 3.8–3.9) with exponential backup —
 //!   [`equalize`];
 //! - local-consistency diagnostics (eq. 2.6–2.7) — [`diagnostics`];
+//! - singular F Fᵀ with noise-free coordinates: the degenerate
+//!   moment-matching kernel — [`degenerate`] — and the anisotropic metric
+//!   that makes it consistent — [`metric`];
 //! - flat CSR storage and snapshot views — [`storage`].
 
 pub mod build;
+pub mod degenerate;
 pub mod diagnostics;
 pub mod equalize;
 pub mod frame;
 pub mod index;
 pub mod kernel;
 pub mod knn_tree;
+pub mod metric;
 #[cfg(test)]
 mod nn_timing_tests;
 pub use crate::math::linalg;
@@ -44,7 +49,7 @@ pub mod snapshot;
 pub mod storage;
 
 pub use build::{Chain, ChainStats};
-pub use diagnostics::{ConsistencyReport, StateConsistency};
+pub use diagnostics::{ConsistencyReport, RowReport, StateConsistency};
 pub use equalize::{PropagationKernel, TimeEqualized};
 pub use kernel::{KernelKind, KernelOutcome};
 pub use sample::Sampler;

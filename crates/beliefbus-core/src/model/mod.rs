@@ -28,6 +28,7 @@ pub mod linear;
 pub mod lorenz;
 pub mod param_estimation;
 pub mod path_cost;
+pub mod planar_quadrotor;
 pub mod sample;
 pub mod scale;
 pub mod ship;

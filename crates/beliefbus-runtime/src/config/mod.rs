@@ -426,6 +426,11 @@ pub struct RefineConfig {
     /// see `LiveChainFilter::set_moving_frame`). Off: one incremental chain.
     #[serde(default)]
     pub moving_frame: bool,
+    /// Reference control u₀ the chain versions are built for (hover
+    /// thrust, cruise speed): one entry per model control, empty for
+    /// u₀ = 0. The filter takes a control's effect relative to f(x, u₀).
+    #[serde(default)]
+    pub reference_control: Vec<f64>,
 }
 
 fn default_refine_period() -> f64 {
@@ -477,6 +482,7 @@ impl Default for RefineConfig {
             min_std_fraction: default_min_std_fraction(),
             knn_c: default_knn_c(),
             moving_frame: false,
+            reference_control: vec![],
         }
     }
 }

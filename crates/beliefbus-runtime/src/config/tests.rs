@@ -153,6 +153,10 @@ fn values_that_size_memory_work_or_time_are_bounded() {
         ("filter.pf.max_dt=1e-12", "filter.pf.max_dt"),
         ("filter.ekf.max_dt=1e-12", "filter.ekf.max_dt"),
         ("refine.knn_c=1e9", "refine.knn_c"),
+        (
+            "refine.reference_control=[1, 2, 3, 4, 5, 6, 7, 8, 9]",
+            "refine.reference_control",
+        ),
         ("refine.max_states=1000000", "refine.max_states"),
         ("run.duration_s=1e300", "run.duration_s"),
         ("run.warmup_s=1e300", "run.warmup_s"),

@@ -345,6 +345,19 @@ impl PipelineConfig {
         self.validate_control(&model)?;
 
         self.refine.validate()?;
+        let u0 = &self.refine.reference_control;
+        if !(u0.is_empty() || u0.len() == model.dims().control) {
+            return Err(ConfigError::new(
+                "refine.reference_control",
+                format!("needs {} entries (or none)", model.dims().control),
+            ));
+        }
+        if u0.iter().any(|v| !v.is_finite()) {
+            return Err(ConfigError::new(
+                "refine.reference_control",
+                "must be finite",
+            ));
+        }
         positive(
             "filter.chain.prepare_budget_us",
             self.filter.chain.prepare_budget_us,

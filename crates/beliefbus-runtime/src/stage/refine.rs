@@ -184,8 +184,8 @@ impl Refiner {
                     mid[i] = 0.5 * (m0[i] + g.mean[i]);
                 }
                 let mut f = [0.0; MAX_STATE];
-                self.model
-                    .drift(&mid[..d], &[0.0; MAX_CONTROL][..nu], &mut f[..d]);
+                let u0 = self.reference_control();
+                self.model.drift(&mid[..d], &u0[..nu], &mut f[..d]);
                 for i in 0..d {
                     let c = (g.mean[i] - m0[i]) / (t - t0) - f[i];
                     if c.is_finite() {
@@ -198,6 +198,12 @@ impl Refiner {
             Some((_, t0)) if t >= t0 => {}
             _ => self.anchor = Some((g.mean, t)),
         }
+    }
+
+    /// The reference control u₀ the chains are built for
+    /// (`refine.reference_control`, 0 when empty).
+    fn reference_control(&self) -> [f64; MAX_CONTROL] {
+        chain_config(&self.cfg, self.belief.dim).control
     }
 
     /// Follow the latest control (ignored unless finite and of the
@@ -255,7 +261,7 @@ impl Refiner {
         let nu = self.model.dims().control;
         let (u, drive) = match self.control {
             Some(u) => (u, [0.0; MAX_STATE]),
-            None => ([0.0; MAX_CONTROL], self.drive),
+            None => (self.reference_control(), self.drive),
         };
         let mut f = [0.0; MAX_STATE];
         for _ in 0..steps {

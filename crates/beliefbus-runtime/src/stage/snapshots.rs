@@ -12,11 +12,15 @@ use crate::ipc::{Qos, SliceQos};
 pub const CHAIN_CHANNEL: &str = "chain";
 
 /// The construction parameters of the pipeline's chain: moment-matching
-/// kernel with the k-NN Near rule of `refine.knn_c`, built for u₀ = 0.
+/// kernel with the k-NN Near rule of `refine.knn_c`, built for the
+/// reference control `refine.reference_control` (u₀ = 0 when empty).
 pub fn chain_config(cfg: &PipelineConfig, dim: usize) -> ChainConfig {
-    ChainConfig::moment_matched(dim).with_near(NearRule::Knn {
+    let mut c = ChainConfig::moment_matched(dim).with_near(NearRule::Knn {
         c: cfg.refine.knn_c,
-    })
+    });
+    let u0 = &cfg.refine.reference_control;
+    c.control[..u0.len()].copy_from_slice(u0);
+    c
 }
 
 /// The snapshot channel's QoS (identical for refine and filter): room for a

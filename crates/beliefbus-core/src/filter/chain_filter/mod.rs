@@ -38,7 +38,9 @@
 //!   covariance is FFᵀΔt it shifts the mean by that amount to first order.
 //!   Holding times stay those of u₀. The tilt (n drift evaluations, nnz
 //!   exponentials) is recomputed only when u changes; predict with u = u₀
-//!   uses the untilted kernel. States where FFᵀ is singular are not tilted.
+//!   uses the untilted kernel. Where FFᵀ is singular on noise-free
+//!   coordinates the tilt acts on the noisy block ([`control`]); states
+//!   where it cannot act are counted ([`ChainFilter::control_unapplied`]).
 //! - **Flush** (not in the thesis; it keeps the sparse support bounded):
 //!   after each update, the smallest posterior masses are set to zero,
 //!   at most ε of the (normalised) mass in total, ε = [`FLUSH_MASS`] by
@@ -151,6 +153,8 @@ pub struct ChainFilter<M: SdeModel> {
     /// [`crate::filter::regularise`]).
     collapses: u64,
     collapse_fraction: f64,
+    /// Rows left untilted under a control ≠ u₀ (see [`control`]).
+    control_unapplied: u64,
 }
 
 impl<M: SdeModel> ChainFilter<M> {
@@ -201,6 +205,7 @@ impl<M: SdeModel> ChainFilter<M> {
             updates: 0,
             collapses: 0,
             collapse_fraction: crate::filter::regularise::DEFAULT_COLLAPSE_FRACTION,
+            control_unapplied: 0,
         };
         f.refresh_obs_means(0);
         f.tilt_probs.resize(f.chain.nnz(), 0.0);
@@ -229,6 +234,12 @@ impl<M: SdeModel> ChainFilter<M> {
             let (x, g) = (self.chain.state(i), &mut self.obs_mean[i * m..(i + 1) * m]);
             self.model.obs_mean(x, g);
         }
+    }
+
+    /// Rows whose control tilt could not be applied, summed over control
+    /// changes (0 when every row follows the control; see [`control`]).
+    pub fn control_unapplied(&self) -> u64 {
+        self.control_unapplied
     }
 
     /// The chain.

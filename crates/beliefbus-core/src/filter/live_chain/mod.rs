@@ -215,6 +215,9 @@ pub struct LiveChainFilter<M: SdeModel, S: AsRef<[u64]>> {
     pre_w: Vec<f64>,
     frame_w: [f64; MAX_STATE],
     frame_d: [f64; MAX_STATE],
+    /// The reference control u₀ every version is built for
+    /// ([`Self::set_reference_control`]; 0 by default).
+    u_ref: [f64; MAX_CONTROL],
 }
 
 impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
@@ -234,24 +237,8 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         // The axes a unit control moves at the prior mean (the ship: the
         // velocities); for a control-affine model with constant B these are
         // the only axes v = f(x, u) − f(x, u₀) ever has.
-        let (d, nu) = (dims.state, dims.control);
-        let mut f0 = [0.0; MAX_STATE];
-        let mut f1 = [0.0; MAX_STATE];
-        let mut moved = [false; MAX_STATE];
-        let zero = [0.0; MAX_CONTROL];
-        model.drift(&prior.mean[..d], &zero[..nu], &mut f0[..d]);
-        for c in 0..nu {
-            let mut u = [0.0; MAX_CONTROL];
-            u[c] = 1.0;
-            model.drift(&prior.mean[..d], &u[..nu], &mut f1[..d]);
-            for i in 0..d {
-                moved[i] |= (f1[i] - f0[i]).abs() > 1e-12 || !(f1[i] - f0[i]).is_finite();
-            }
-        }
-        let ctrl_slots = (0..d)
-            .filter(|&i| moved[i])
-            .flat_map(|i| [2 * i, 2 * i + 1])
-            .collect();
+        let u_ref = [0.0; MAX_CONTROL];
+        let ctrl_slots = control_axes(&model, &prior.mean[..dims.state], &u_ref);
         Self {
             model,
             dims,
@@ -289,7 +276,36 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             pre_w: Vec::with_capacity(n),
             frame_w: [0.0; MAX_STATE],
             frame_d: [0.0; MAX_STATE],
+            u_ref,
         }
+    }
+
+    /// Set the reference control u₀ the chain versions are built for (the
+    /// `ChainConfig::control` of the construction: hover thrust, cruise
+    /// speed). The control's transport, the moving frame and its drift w
+    /// are then taken relative to f(·, u₀). Refuses a control of the wrong
+    /// length or with non-finite entries.
+    pub fn set_reference_control(&mut self, u0: &[f64]) -> Result<(), FilterError> {
+        let nu = self.dims.control;
+        if u0.len() != nu {
+            return Err(FilterError::Dimension {
+                what: "reference control",
+                got: u0.len(),
+                expected: nu,
+            });
+        }
+        if u0.iter().any(|v| !v.is_finite()) {
+            return Err(FilterError::NonFinite("reference control"));
+        }
+        self.u_ref[..nu].copy_from_slice(u0);
+        self.ctrl_slots =
+            control_axes(&self.model, &self.last.mean[..self.dims.state], &self.u_ref);
+        Ok(())
+    }
+
+    /// The reference control u₀ of the chain versions.
+    pub fn reference_control(&self) -> &[f64] {
+        &self.u_ref[..self.dims.control]
     }
 
     /// Whether a version is being prepared.
@@ -435,6 +451,31 @@ impl<M: SdeModel, S: AsRef<[u64]> + Send> BayesFilter for LiveChainFilter<M, S> 
     fn ess_collapses(&self) -> Option<u64> {
         Some(self.collapses)
     }
+}
+
+/// The signed axes (`2i`, `2i + 1` for ±e_i) a unit control moves at `x`
+/// relative to the reference control `u0` (the ship: its velocities); for
+/// a control-affine model with constant B these are the only axes
+/// v = f(x, u) − f(x, u₀) ever has.
+fn control_axes<M: SdeModel>(model: &M, x: &[f64], u0: &[f64; MAX_CONTROL]) -> Vec<usize> {
+    let dims = model.dims();
+    let (d, nu) = (dims.state, dims.control);
+    let mut f0 = [0.0; MAX_STATE];
+    let mut f1 = [0.0; MAX_STATE];
+    let mut moved = [false; MAX_STATE];
+    model.drift(x, &u0[..nu], &mut f0[..d]);
+    for c in 0..nu {
+        let mut u = *u0;
+        u[c] += 1.0;
+        model.drift(x, &u[..nu], &mut f1[..d]);
+        for i in 0..d {
+            moved[i] |= (f1[i] - f0[i]).abs() > 1e-12 || !(f1[i] - f0[i]).is_finite();
+        }
+    }
+    (0..d)
+        .filter(|&i| moved[i])
+        .flat_map(|i| [2 * i, 2 * i + 1])
+        .collect()
 }
 
 #[cfg(test)]

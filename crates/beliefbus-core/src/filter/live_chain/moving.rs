@@ -8,17 +8,19 @@ use crate::chain::snapshot::SnapshotView;
 use crate::model::SdeModel;
 use crate::{MAX_CONTROL, MAX_STATE};
 
-/// The moving frame of a chain version: the mean uncontrolled drift w of
-/// its states and their mean c. A moving-frame chain is built for
-/// f(x, u₀) − w (see `stage::refine`), and refine computes the same w from
-/// the same states.
+/// The moving frame of a chain version: the mean drift w under the
+/// reference control `u0` of its states and their mean c. A moving-frame
+/// chain is built for f(x, u₀) − w (see `stage::refine`), and refine
+/// computes the same w from the same states.
 pub fn frame_of<M: SdeModel + ?Sized>(
     model: &M,
     view: &SnapshotView,
+    u0: &[f64],
 ) -> ([f64; MAX_STATE], [f64; MAX_STATE]) {
     let d = view.dim;
     let nu = model.dims().control;
-    let u = [0.0; MAX_CONTROL];
+    let mut u = [0.0; MAX_CONTROL];
+    u[..nu].copy_from_slice(&u0[..nu]);
     let (mut w, mut c) = ([0.0; MAX_STATE], [0.0; MAX_STATE]);
     let mut f = [0.0; MAX_STATE];
     let n = view.len();
@@ -93,7 +95,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
     pub(super) fn move_frame(&mut self, u: &[f64], dt: f64) {
         let d = self.dims.state;
         let nu = self.dims.control;
-        let u0 = [0.0; MAX_CONTROL];
+        let u0 = self.u_ref;
         let m = self.last.mean;
         let mut zb = [0.0; MAX_STATE];
         for k in 0..d {

@@ -15,7 +15,7 @@ use super::{frame_of, Active, LiveChainFilter, Pending, Progress, SwapInfo, CHUN
 use crate::chain::snapshot::{HeldSnapshot, SnapshotError, SnapshotView};
 use crate::math::linalg::cholesky;
 use crate::model::SdeModel;
-use crate::{MAX_CONTROL, MAX_STATE};
+use crate::MAX_STATE;
 
 impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
     /// Hand over a received snapshot; it replaces a pending one (which is
@@ -108,7 +108,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
                 let mut f = [0.0; MAX_STATE];
                 for i in p.next..hi {
                     let z = view.state(i);
-                    self.model.drift(z, &[0.0; MAX_CONTROL][..nu], &mut f[..d]);
+                    self.model.drift(z, &self.u_ref[..nu], &mut f[..d]);
                     for a in 0..d {
                         p.frame_sums.0[a] += f[a];
                         p.frame_sums.1[a] += z[a];
@@ -301,7 +301,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
             let g = self.belief_now();
             let mut h = g;
             if self.moving {
-                let (w, c) = frame_of(&self.model, &newv);
+                let (w, c) = frame_of(&self.model, &newv, &self.u_ref);
                 self.frame_w = w;
                 for k in 0..self.dims.state {
                     self.frame_d[k] = g.mean[k] - c[k];

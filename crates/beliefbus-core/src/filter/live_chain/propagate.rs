@@ -13,7 +13,7 @@ use crate::chain::snapshot::SnapshotView;
 use crate::filter::control_transport::ControlTransport;
 use crate::filter::{check_predict, FilterError};
 use crate::model::SdeModel;
-use crate::{MAX_CONTROL, MAX_STATE};
+use crate::MAX_STATE;
 
 impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
     /// Propagate to `t` with `u` held.
@@ -69,16 +69,16 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         Ok(())
     }
 
-    /// The control's drift v = f(x̂, u) − f(x̂, u₀) at the belief mean
-    /// (u₀ = 0: the refine stage builds uncontrolled chains); exact for
+    /// The control's drift v = f(x̂, u) − f(x̂, u₀) at the belief mean, u₀
+    /// the reference control the versions are built for
+    /// ([`LiveChainFilter::set_reference_control`]); exact for
     /// control-affine models with constant input matrix.
     fn control_velocity(&self, u: &[f64], v: &mut [f64]) {
         let d = self.dims.state;
         let nu = self.dims.control;
         let m = self.last.mean;
         let mut f0 = [0.0; MAX_STATE];
-        let zero = [0.0; MAX_CONTROL];
-        self.model.drift(&m[..d], &zero[..nu], &mut f0[..d]);
+        self.model.drift(&m[..d], &self.u_ref[..nu], &mut f0[..d]);
         self.model.drift(&m[..d], u, &mut v[..d]);
         for k in 0..d {
             v[k] -= f0[k];

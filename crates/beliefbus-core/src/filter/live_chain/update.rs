@@ -34,7 +34,7 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         if let Some(act) = self.active.as_ref() {
             let view = act.snap.view();
             if self.moving {
-                let (_, c) = frame_of(&self.model, &view);
+                let (_, c) = frame_of(&self.model, &view, &self.u_ref);
                 for k in 0..self.dims.state {
                     self.frame_d[k] = prior.mean[k] - c[k];
                 }

@@ -236,6 +236,13 @@ impl Backend {
                 c.set_reanchor(cfg.filter.chain.reanchor_ess);
                 c.set_collapse_fraction(cfg.filter.chain.collapse_fraction);
                 c.set_moving_frame(cfg.refine.moving_frame);
+                if !cfg.refine.reference_control.is_empty() {
+                    c.set_reference_control(&cfg.refine.reference_control)
+                        .map_err(|e| StageError::Build {
+                            what: "chain filter",
+                            reason: e.to_string(),
+                        })?;
+                }
                 let stale = &cfg.filter.chain.stale;
                 // The fallback: the chain backend's Gaussian filter (EKF).
                 let fallback = if stale.enabled {
