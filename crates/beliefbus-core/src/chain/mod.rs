@@ -43,7 +43,7 @@ pub use crate::model::sample;
 pub mod snapshot;
 pub mod storage;
 
-pub use build::{Chain, ChainStats};
+pub use build::{BatchBuild, Chain, ChainStats};
 pub use diagnostics::{ConsistencyReport, StateConsistency};
 pub use equalize::{PropagationKernel, TimeEqualized};
 pub use kernel::{KernelKind, KernelOutcome};
