@@ -211,10 +211,7 @@ impl FrameJob {
 
     /// The chain and δ fitted to its holding times, once complete.
     pub fn finish(self) -> Result<(Chain, TimeEqualized), super::ChainError> {
-        let c = self
-            .build
-            .finish()
-            .map_err(|_| super::ChainError::State("moving-frame version is not complete"))?;
+        let c = self.build.finish()?;
         let mut eq = TimeEqualized::new(self.dt)?;
         eq.fit(c.holding());
         Ok((c, eq))

@@ -392,10 +392,7 @@ impl Refiner {
             self.first = Some(b);
             return Ok(false);
         }
-        let c = b.finish().map_err(|_| StageError::Build {
-            what: "chain",
-            reason: "first chain incomplete".into(),
-        })?;
+        let c = b.finish().map_err(build)?;
         self.eq.fit(c.holding());
         self.chain = Some(c);
         Ok(true)

@@ -157,12 +157,15 @@ impl BatchBuild {
         Ok(())
     }
 
-    /// The chain, once the build is complete (else the build back).
-    pub fn finish(self) -> Result<Chain, Self> {
+    /// The chain, once the build is complete (check [`Self::is_done`]:
+    /// an incomplete build is an error and is dropped).
+    pub fn finish(self) -> Result<Chain, ChainError> {
         if self.is_done() {
             Ok(self.chain)
         } else {
-            Err(self)
+            Err(ChainError::State(
+                "batch construction stopped before its end",
+            ))
         }
     }
 }

@@ -196,7 +196,6 @@ impl Chain {
         let mut b = BatchBuild::new(model, cfg, points.to_vec())?;
         b.run(model, || true)?;
         b.finish()
-            .map_err(|_| ChainError::State("batch construction stopped before its end"))
     }
 
     /// Batch construction from `n` draws of `sampler`.

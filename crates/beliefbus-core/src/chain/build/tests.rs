@@ -291,7 +291,7 @@ fn a_build_in_slices_is_the_batch_chain() {
         }
         assert_eq!(calls + 1, total);
         assert_eq!(b.progress(), (total, total));
-        let mut sliced = b.finish().ok().unwrap();
+        let mut sliced = b.finish().unwrap();
         assert_eq!(sliced.holding(), whole.holding());
         assert_eq!(sliced.radius(), whole.radius());
         let (vs, vw) = (sliced.view(), whole.view());
@@ -315,8 +315,8 @@ fn an_unfinished_build_is_not_a_chain() {
         })
         .unwrap());
     assert_eq!(b.progress().0, 60);
-    let b = b.finish().err().unwrap();
     assert!(!b.is_done());
+    assert!(matches!(b.finish(), Err(ChainError::State(_))));
     // Points of the wrong length are refused with a typed error.
     assert!(matches!(
         BatchBuild::new(&m, ChainConfig::gaussian(2), vec![0.0; 3]),
