@@ -367,4 +367,33 @@ mod tests {
         encode(a.next_id(), &words, &mut bad);
         assert!(Refiner::resumed(&c, &bad, &r).is_err());
     }
+
+    #[test]
+    fn a_checkpoint_begun_is_on_disk_once_it_is_durable() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("bb-ckpt-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700)).unwrap();
+        let r = Resume {
+            state_dir: Some(dir.clone()),
+            ..Resume::default()
+        };
+        let mut ck = Checkpointer::new(&r, 16);
+        for (k, words) in [vec![1u64, 2, 3], vec![9u64; 12]].into_iter().enumerate() {
+            ck.begin(40 + k as u32, &words);
+            while !ck.is_durable() {
+                std::thread::yield_now();
+            }
+            assert_eq!(ck.written, k as u64 + 1);
+            let (next, back) = decode(&r.read_checkpoint(StageKind::Refine).unwrap()).unwrap();
+            assert_eq!((next, back), (40 + k as u32, words));
+        }
+        assert_eq!(ck.failed, 0);
+        // Without a state directory nothing is written and all is durable.
+        let mut none = Checkpointer::new(&Resume::default(), 16);
+        none.begin(1, &[5]);
+        assert!(none.is_durable());
+        assert_eq!(none.written, 0);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
