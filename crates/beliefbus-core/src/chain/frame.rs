@@ -7,7 +7,7 @@
 //! ([`crate::filter::live_chain::LiveChainFilter::set_moving_frame`]).
 
 use crate::belief::Gaussian;
-use crate::chain::{Chain, ChainConfig, Sampler, TimeEqualized};
+use crate::chain::{BatchBuild, Chain, ChainConfig, Sampler, TimeEqualized};
 use crate::model::{Bounds, Dims, SdeJacobians, SdeModel};
 use crate::rng::SimRng;
 use crate::MAX_STATE;
@@ -111,7 +111,7 @@ pub fn sampler_around<M: SdeModel + ?Sized>(
 /// control u₀ = `p.chain.control` (the filter computes the same w from the
 /// snapshot and its own u₀,
 /// [`crate::filter::live_chain::frame_of`]), and δ fitted to its holding
-/// times.
+/// times. Built in one go; [`FrameJob`] builds the same version in slices.
 pub fn build_framed<M: SdeModel + ?Sized>(
     model: &M,
     belief: &Gaussian,
@@ -119,32 +119,104 @@ pub fn build_framed<M: SdeModel + ?Sized>(
     p: &FrameBuild,
     rng: &mut SimRng,
 ) -> Result<(Chain, TimeEqualized), super::ChainError> {
-    let d = belief.dim;
-    let nu = model.dims().control;
-    let sampler = sampler_around(model, belief, &belief.mean[..d], p);
-    let mut pts = vec![0.0; n * d];
-    for x in pts.chunks_exact_mut(d) {
-        match &sampler {
-            Some(smp) => smp.sample(model.bounds(), rng, x),
-            None => Sampler::Uniform.sample(model.bounds(), rng, x),
+    let mut job = FrameJob::start(model, belief, n, p, rng)?;
+    job.run(model, || true)?;
+    job.finish()
+}
+
+/// A moving-frame version under construction: the points drawn and w
+/// computed at [`FrameJob::start`], the batch chain then built in slices
+/// ([`BatchBuild`]) — what [`build_framed`] does in one go, with the same
+/// random numbers and the same result.
+pub struct FrameJob {
+    build: BatchBuild,
+    w: [f64; MAX_STATE],
+    dt: f64,
+}
+
+impl FrameJob {
+    /// Draw the `n` states around `belief` and compute w (O(n) model
+    /// evaluations); nothing of the chain is built yet.
+    pub fn start<M: SdeModel + ?Sized>(
+        model: &M,
+        belief: &Gaussian,
+        n: usize,
+        p: &FrameBuild,
+        rng: &mut SimRng,
+    ) -> Result<Self, super::ChainError> {
+        let d = belief.dim;
+        let nu = model.dims().control;
+        let sampler = sampler_around(model, belief, &belief.mean[..d], p);
+        let mut pts = vec![0.0; n * d];
+        for x in pts.chunks_exact_mut(d) {
+            match &sampler {
+                Some(smp) => smp.sample(model.bounds(), rng, x),
+                None => Sampler::Uniform.sample(model.bounds(), rng, x),
+            }
         }
-    }
-    let mut w = [0.0; MAX_STATE];
-    let mut f = [0.0; MAX_STATE];
-    for x in pts.chunks_exact(d) {
-        model.drift(x, &p.chain.control[..nu], &mut f[..d]);
-        for a in 0..d {
-            w[a] += f[a];
+        let mut w = [0.0; MAX_STATE];
+        let mut f = [0.0; MAX_STATE];
+        for x in pts.chunks_exact(d) {
+            model.drift(x, &p.chain.control[..nu], &mut f[..d]);
+            for a in 0..d {
+                w[a] += f[a];
+            }
         }
+        for wa in &mut w[..d] {
+            *wa /= n as f64;
+        }
+        let framed = Framed { inner: model, w };
+        // δ's bound is checked before any work is done.
+        TimeEqualized::new(p.dt)?;
+        Ok(Self {
+            build: BatchBuild::new(&framed, p.chain.clone(), pts)?,
+            w,
+            dt: p.dt,
+        })
     }
-    for wa in &mut w[..d] {
-        *wa /= n as f64;
+
+    /// Continue the build while `more()` says so (at least one unit of
+    /// work per call, see [`BatchBuild::run`]); `model` is the one given to
+    /// [`Self::start`]. Returns whether the chain is complete.
+    pub fn run<M: SdeModel + ?Sized>(
+        &mut self,
+        model: &M,
+        more: impl FnMut() -> bool,
+    ) -> Result<bool, super::ChainError> {
+        let framed = Framed {
+            inner: model,
+            w: self.w,
+        };
+        self.build.run(&framed, more)
     }
-    let framed = Framed { inner: model, w };
-    let c = Chain::batch(&framed, p.chain.clone(), &pts)?;
-    let mut eq = TimeEqualized::new(p.dt)?;
-    eq.fit(c.holding());
-    Ok((c, eq))
+
+    /// Whether the chain is complete.
+    pub fn is_done(&self) -> bool {
+        self.build.is_done()
+    }
+
+    /// States of the version.
+    pub fn len(&self) -> usize {
+        self.build.len()
+    }
+
+    /// Whether the version has no states.
+    pub fn is_empty(&self) -> bool {
+        self.build.is_empty()
+    }
+
+    /// Units of work done and in all ([`BatchBuild::progress`]).
+    pub fn progress(&self) -> (usize, usize) {
+        self.build.progress()
+    }
+
+    /// The chain and δ fitted to its holding times, once complete.
+    pub fn finish(self) -> Result<(Chain, TimeEqualized), super::ChainError> {
+        let c = self.build.finish()?;
+        let mut eq = TimeEqualized::new(self.dt)?;
+        eq.fit(c.holding());
+        Ok((c, eq))
+    }
 }
 
 #[cfg(test)]
@@ -187,5 +259,47 @@ mod tests {
             assert_eq!([g[0], g[1]], [f[0] - 0.5, f[1] + 1.5]);
             assert_eq!([f_soa[k], f_soa[3 + k]], g);
         }
+    }
+
+    #[test]
+    fn a_version_built_in_slices_is_the_version_built_at_once() {
+        use crate::chain::{moment_equations, NearRule};
+        use crate::model::ship::{Ship, ShipParams};
+        let ship = Ship::new(ShipParams::paper(0.01)).unwrap();
+        let belief = Gaussian::diagonal(&[3.0, 0.5, 1.0, -0.5], &[0.3, 0.3, 0.2, 0.2]);
+        let p = FrameBuild {
+            inflate: 2.0,
+            uniform_fraction: 0.02,
+            min_std_fraction: 0.01,
+            chain: ChainConfig::moment_matched(4).with_near(NearRule::Knn { c: 1.5 }),
+            dt: 0.01,
+        };
+        assert!(p.chain.min_neighbours > moment_equations(4));
+        let (mut whole, eq) =
+            build_framed(&ship, &belief, 400, &p, &mut crate::rng::stream(3, 1)).unwrap();
+        let mut job =
+            FrameJob::start(&ship, &belief, 400, &p, &mut crate::rng::stream(3, 1)).unwrap();
+        let mut slices = 1;
+        // Slices of 25 units each.
+        loop {
+            let mut left = 25;
+            if job
+                .run(&ship, || {
+                    left -= 1;
+                    left > 0
+                })
+                .unwrap()
+            {
+                break;
+            }
+            slices += 1;
+        }
+        assert_eq!(slices, (2 * 400 + 2usize).div_ceil(25));
+        let (mut sliced, eq2) = job.finish().unwrap();
+        assert_eq!(eq2.delta(), eq.delta());
+        assert_eq!(sliced.states(), whole.states());
+        assert_eq!(sliced.holding(), whole.holding());
+        let (vs, vw) = (sliced.view(), whole.view());
+        assert_eq!((vs.cols, vs.probs), (vw.cols, vw.probs));
     }
 }

@@ -48,7 +48,7 @@ pub use crate::model::sample;
 pub mod snapshot;
 pub mod storage;
 
-pub use build::{Chain, ChainStats};
+pub use build::{BatchBuild, Chain, ChainStats};
 pub use diagnostics::{ConsistencyReport, RowReport, StateConsistency};
 pub use equalize::{PropagationKernel, TimeEqualized};
 pub use kernel::{KernelKind, KernelOutcome};

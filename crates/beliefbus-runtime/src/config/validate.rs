@@ -358,6 +358,15 @@ impl PipelineConfig {
                 "must be finite",
             ));
         }
+        // A refine round lasts work_ms and counts against the stage's
+        // budget: a longer round would be a miss by design.
+        let refine_budget_ms = self.stages.get(StageKind::Refine).budget_us * 1e-3;
+        if refine_budget_ms > 0.0 && self.refine.work_ms >= refine_budget_ms {
+            return Err(ConfigError::new(
+                "refine.work_ms",
+                "must be below stages.refine.budget_us (a round counts against that budget)",
+            ));
+        }
         positive(
             "filter.chain.prepare_budget_us",
             self.filter.chain.prepare_budget_us,

@@ -4,8 +4,9 @@
 //! chain backend.
 //!
 //! Each round (every `refine.period_ms`, for at most `refine.work_ms`):
-//! 1. First round: a batch chain (thesis Alg. 2.1) of `initial_states`
-//!    around the prior, published at once (a crude chain quickly).
+//! 1. First rounds: a batch chain (thesis Alg. 2.1) of `initial_states`
+//!    around the prior, built in slices and published as soon as it is
+//!    complete (a crude chain quickly).
 //! 2. Incremental construction (Alg. 2.3: add z, ConnectState(z), reconnect
 //!    Near(z)) with new states drawn around the latest belief: N(m(τ),
 //!    (inflate·σ)²) with m(τ) the belief mean carried by the uncontrolled
@@ -35,8 +36,18 @@
 //! translation of the frame (see
 //! [`crate::filter::live_chain::LiveChainFilter::set_moving_frame`] for
 //! why: a fixed point set diffuses the ship's position drift numerically).
-//! A version is built when one is due, from the latest belief, and is a
+//! A version is started when one is due, from the latest belief, and is a
 //! lineage of its own. Steps 2–4 above then do not apply.
+//!
+//! **Bounded rounds** (anytime): a round never runs past `refine.work_ms`.
+//! A moving-frame version (2000 states: about 40 ms of one core) is built
+//! in slices ([`crate::chain::frame::FrameJob`]: per-state caches, k-d
+//! tree, order, one row at a time, the clock read between units), continued
+//! every `period_ms`, and published in the round that completes it; the
+//! last publication's cost (P^δ, snapshot, checkpoint) is kept free at the
+//! end of every round, so that round ends in time too. The compute time
+//! recorded against the stage's budget is the whole round, building and
+//! publishing.
 //!
 //! The snapshot service keeps history 1 and buffer 1 (latest value) and
 //! lets a subscriber hold 2 snapshots (the filter's active and pending
@@ -48,26 +59,19 @@
 //! With a filter backend other than `chain` nobody reads the chain: refine
 //! then only follows the beliefs and reports (no rounds, no snapshots).
 
-use super::resume::Resume;
 use super::snapshots::{chain_config, chain_qos, CHAIN_CHANNEL};
-use super::{
-    guarded, stopped, DropReason, Metrics, SeqTracker, StageError, StageIdentity, StatsPort,
-};
+use super::{StageError, StageIdentity, StatsPort};
 use crate::belief::Gaussian;
-use crate::chain::frame::{build_framed, sampler_around, FrameBuild};
+use crate::chain::frame::{sampler_around, FrameBuild, FrameJob};
 use crate::chain::snapshot::{self, SnapshotMeta};
-use crate::chain::{Chain, PropagationKernel, Sampler, TimeEqualized};
+use crate::chain::{BatchBuild, Chain, PropagationKernel, Sampler, TimeEqualized};
 use crate::config::PipelineConfig;
-use crate::ipc::{
-    run_loop, Belief, Bus, Control, SlicePublisher, StageKind, StageStats, Subscriber, Wake,
-};
+use crate::ipc::{Belief, Bus, Control, SlicePublisher, Subscriber};
 use crate::model::SdeModel;
 use crate::rng::SimRng;
-use crate::rt::Clock;
 use crate::scenario::DynModel;
 use crate::{MAX_CONTROL, MAX_STATE};
 use rand::RngExt;
-use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 #[path = "refine_resume.rs"]
@@ -110,6 +114,12 @@ pub struct Refiner {
     rng: SimRng,
     lineage: u64,
     version: u64,
+    /// Moving frame: the version under construction, and whether a
+    /// completed one awaits publication.
+    job: Option<FrameJob>,
+    ready: bool,
+    /// Incremental chain: the first (batch) chain under construction.
+    first: Option<BatchBuild>,
     touched: Vec<u32>,
     rec: Vec<u32>,
     /// Drift of the belief mean that f(m, u₀) does not explain (the
@@ -148,6 +158,9 @@ impl Refiner {
             rng: crate::rng::stream(cfg.run.seed, 0x5eed_c4a1),
             lineage,
             version: 0,
+            job: None,
+            ready: false,
+            first: None,
             touched: Vec::new(),
             rec: Vec::new(),
             drive: [0.0; MAX_STATE],
@@ -302,27 +315,103 @@ impl Refiner {
     /// so the states need not be placed ahead of it. Each version is a
     /// lineage of its own.
     fn build_framed(&mut self) -> Result<usize, StageError> {
-        // The first version is a crude chain of `initial_states`, at once.
-        let n = if self.chain.is_none() {
-            self.cfg.refine.initial_states
-        } else {
-            self.cfg.refine.max_states
-        };
-        let (c, eq) = build_framed(
-            &self.model,
-            &self.belief,
-            n,
-            &self.frame_build(),
-            &mut self.rng,
-        )
-        .map_err(|e| StageError::Build {
+        self.job = None;
+        self.work_until(|| true)?;
+        Ok(self.len())
+    }
+
+    /// Moving frame, in slices: continue the version under construction
+    /// (starting one from the latest belief if there is none) while
+    /// `more()` says so — at least one unit of work per call, a unit being
+    /// one state's caches, the k-d tree, the order or one row (see
+    /// [`crate::chain::BatchBuild`]). Returns whether a version was
+    /// completed; it then replaces the chain and awaits
+    /// [`Self::write_snapshot`] ([`Self::version_ready`]).
+    ///
+    /// Incremental chain (`moving_frame = false`): builds the first chain
+    /// the same way (then returns true once it is complete) and does
+    /// nothing once there is one ([`Self::work`] grows it).
+    pub fn work_until(&mut self, more: impl FnMut() -> bool) -> Result<bool, StageError> {
+        if !self.cfg.refine.moving_frame {
+            return match self.chain {
+                None => self.first_until(more),
+                Some(_) => Ok(false),
+            };
+        }
+        let build = |e: crate::chain::ChainError| StageError::Build {
             what: "chain",
             reason: e.to_string(),
-        })?;
+        };
+        let job = match self.job.take() {
+            Some(j) => j,
+            None => {
+                // The first version is a crude chain of `initial_states`.
+                let n = if self.chain.is_none() {
+                    self.cfg.refine.initial_states
+                } else {
+                    self.cfg.refine.max_states
+                };
+                FrameJob::start(
+                    &self.model,
+                    &self.belief,
+                    n,
+                    &self.frame_build(),
+                    &mut self.rng,
+                )
+                .map_err(build)?
+            }
+        };
+        let mut job = job;
+        if !job.run(&self.model, more).map_err(build)? {
+            self.job = Some(job);
+            return Ok(false);
+        }
+        let (c, eq) = job.finish().map_err(build)?;
         self.eq = eq;
         self.chain = Some(c);
         self.frames += 1;
-        Ok(n)
+        self.ready = true;
+        Ok(true)
+    }
+
+    /// The incremental chain's first chain: a batch chain of
+    /// `initial_states` around the prior, continued while `more()` says so;
+    /// returns whether it is complete.
+    fn first_until(&mut self, more: impl FnMut() -> bool) -> Result<bool, StageError> {
+        let d = self.belief.dim;
+        let build = |e: crate::chain::ChainError| StageError::Build {
+            what: "chain",
+            reason: e.to_string(),
+        };
+        let mut b = match self.first.take() {
+            Some(b) => b,
+            None => {
+                let n = self.cfg.refine.initial_states;
+                let mut pts = vec![0.0; n * d];
+                for p in pts.chunks_exact_mut(d) {
+                    self.draw(p);
+                }
+                BatchBuild::new(&self.model, chain_config(&self.cfg, d), pts).map_err(build)?
+            }
+        };
+        if !b.run(&self.model, more).map_err(build)? {
+            self.first = Some(b);
+            return Ok(false);
+        }
+        let c = b.finish().map_err(build)?;
+        self.eq.fit(c.holding());
+        self.chain = Some(c);
+        Ok(true)
+    }
+
+    /// Whether a moving-frame version is under construction.
+    pub fn building(&self) -> bool {
+        self.job.is_some()
+    }
+
+    /// Whether a completed moving-frame version awaits publication.
+    pub fn version_ready(&self) -> bool {
+        self.ready
     }
 
     /// Whether versions are moving-frame batch chains (`refine.moving_frame`):
@@ -344,16 +433,8 @@ impl Refiner {
             reason: e.to_string(),
         };
         if self.chain.is_none() {
-            let n = self.cfg.refine.initial_states;
-            let mut pts = vec![0.0; n * d];
-            for p in pts.chunks_exact_mut(d) {
-                self.draw(p);
-            }
-            let c = Chain::batch(&self.model, chain_config(&self.cfg, d), &pts)
-                .map_err(|e| build(&e))?;
-            self.eq.fit(c.holding());
-            self.chain = Some(c);
-            return Ok(n);
+            self.first_until(|| true)?;
+            return Ok(self.len());
         }
         let mut added = 0;
         let mut x = [0.0; MAX_STATE];
@@ -436,6 +517,7 @@ impl Refiner {
         let Some(chain) = self.chain.as_mut() else {
             return Ok(0);
         };
+        self.ready = false;
         snapshot::cell_volumes(chain, &mut self.vol);
         let view = chain.view();
         self.kern.rebuild(&view, self.eq.delta(), false);
@@ -471,112 +553,10 @@ impl Refiner {
     }
 }
 
-/// Run refine until `stop`; returns its final stats.
-pub fn run(
-    ports: RefinePorts,
-    cfg: &PipelineConfig,
-    clock: &dyn Clock,
-    stop: &AtomicBool,
-) -> Result<StageStats, StageError> {
-    run_with(ports, cfg, clock, stop, &Resume::default())
-}
+#[path = "refine_run.rs"]
+mod stage_loop;
+pub use stage_loop::{run, run_with};
 
-/// [`run`] under a supervisor: checkpoints each published snapshot into the
-/// run's state directory and, after a restart, resumes from the last one
-/// (see [`resume`]).
-pub fn run_with(
-    mut ports: RefinePorts,
-    cfg: &PipelineConfig,
-    clock: &dyn Clock,
-    stop: &AtomicBool,
-    restart: &Resume,
-) -> Result<StageStats, StageError> {
-    // Long on purpose: the stage's loop — set-up, then the per-message
-    // body handed to `run_loop` — reads top to bottom in the order a
-    // message takes on the latency path, and its preallocated state lives in
-    // this function's locals, borrowed by the loop body.
-    let rt = cfg.stages.get(StageKind::Refine);
-    let mut m = Metrics::new(rt.budget_ns(), &[], (cfg.run.warmup_s * 1e9) as u64);
-    let mut seq = SeqTracker::default();
-    let mut err = None;
-    ports.stats.publish(&m, clock.now_ns(), false)?;
-    // A lineage per chain: a restarted refine continues its checkpointed
-    // chain (same lineage and ids), else starts a new id space.
-    let mut refiner = resume::start(cfg, clock, restart)?;
-    let mut ckpt = resume::Checkpointer::new(restart, ports.chain.max_len());
-    let tick = Duration::from_secs_f64(cfg.refine.period_ms * 1e-3);
-    let work = Duration::from_secs_f64(cfg.refine.work_ms * 1e-3);
-    let publish_ns = (cfg.refine.publish_period_ms * 1e6) as u64;
-    let period_ns = (cfg.refine.period_ms * 1e6) as u64;
-    // The chain has one consumer, the filter's chain backend: with another
-    // backend refine only follows the beliefs and reports, instead of
-    // spending a core's worth of rounds (and cache and memory bandwidth the
-    // real-time stages share) on a chain nobody reads.
-    let active = cfg.filter.backend == crate::config::FilterBackend::Chain;
-    let mut next_work = if active { 0u64 } else { u64::MAX };
-    let mut next_publish = 0u64;
-    let belief = &ports.belief;
-    let control = &ports.control;
-    let chain_pub = &mut ports.chain;
-    let stats = &mut ports.stats;
-    run_loop(&[belief], rt.wake_mode(), tick, stop, |w| {
-        guarded(&mut err, || {
-            if w == Wake::Data {
-                let (latest, skipped) = belief.latest()?;
-                if let Some(b) = latest {
-                    m.count_drop(DropReason::Superseded, skipped);
-                    m.count_drop(DropReason::Lost, seq.observe(b.header.seq));
-                    m.processed += 1;
-                    refiner.set_belief_at(&b.gaussian(), b.header.t_valid_ns as f64 * 1e-9);
-                }
-                if let (Some(c), _) = control.latest()? {
-                    let n = (c.dim as usize).min(MAX_CONTROL);
-                    refiner.set_control(&c.u[..n]);
-                }
-            }
-            let now = clock.now_ns();
-            // Moving frame: a version is built when one is due, from the
-            // latest belief.
-            let due = !refiner.moving_frame() || refiner.is_empty() || now >= next_publish;
-            if now >= next_work && due {
-                next_work = now + period_ns;
-                let t_in = clock.now_ns();
-                let fresh = refiner.is_empty();
-                // The checkpoint's cost comes out of the round's work time.
-                refiner.work(work.saturating_sub(ckpt.last_cost))?;
-                m.budget.record(t_in, clock.now_ns());
-                let now = clock.now_ns();
-                if fresh || now >= next_publish {
-                    next_publish = now + publish_ns;
-                    let len = refiner.snapshot_words();
-                    if len > chain_pub.max_len() {
-                        return Err(StageError::Build {
-                            what: "chain snapshot",
-                            reason: format!(
-                                "{len} words exceed the channel's {}",
-                                chain_pub.max_len()
-                            ),
-                        });
-                    }
-                    // Checkpoint before sending: no version is seen that a
-                    // restart could publish again.
-                    chain_pub.publish_with(len, |buf| {
-                        let n = refiner.write_snapshot(buf, now)?;
-                        ckpt.save(refiner.next_id(), &buf[..n]);
-                        Ok::<_, StageError>(n)
-                    })??;
-                    m.chain.versions = refiner.version();
-                    m.chain.states = refiner.len() as u64;
-                    m.chain.delta_s = refiner.delta();
-                }
-            }
-            stats.tick(&m, clock.now_ns())?;
-            Ok(())
-        })
-    })?;
-    let last = ports.stats.publish(&m, clock.now_ns(), true)?;
-    match err {
-        Some(e) if !stopped(stop) => Err(e),
-        _ => Ok(last),
-    }
-}
+#[cfg(test)]
+#[path = "refine_tests.rs"]
+mod tests;

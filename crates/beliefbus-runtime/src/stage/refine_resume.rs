@@ -35,7 +35,6 @@ use crate::ipc::StageKind;
 use crate::rt::Clock;
 use crate::stage::resume::Resume;
 use crate::stage::StageError;
-use std::time::{Duration, Instant};
 
 /// "BBCKPT01".
 const MAGIC: u64 = u64::from_le_bytes(*b"BBCKPT01");
@@ -87,47 +86,110 @@ pub fn decode(bytes: &[u8]) -> Result<(u32, Vec<u64>), CheckpointError> {
     Ok((next as u32, snap))
 }
 
-/// Writes refine's checkpoints (a no-op outside a supervised run).
+/// Writes refine's checkpoints (a no-op outside a supervised run) on a
+/// thread of its own: the write ends with an fsync, which takes
+/// milliseconds to tens of milliseconds of wall time — far more than a
+/// refine round may last. The stage begins a checkpoint
+/// ([`Checkpointer::begin`]) and sends the version only once it is durable
+/// ([`Checkpointer::is_durable`]), so the guarantee of the module doc holds.
 pub struct Checkpointer {
-    resume: Resume,
-    buf: Vec<u8>,
+    writer: Option<Writer>,
+    /// A checkpoint begun and not yet reported back by the writer.
+    pending: bool,
     /// Checkpoints written, and failed writes (not fatal: the stage keeps
     /// publishing; a restart then resumes from an older checkpoint or none).
     pub written: u64,
     pub failed: u64,
-    /// Duration of the last save (taken out of the next round's work time).
-    pub last_cost: Duration,
+}
+
+/// The writer thread's ends: buffers go out to be written and come back
+/// (with the write's outcome) to be reused, so no allocation per version.
+struct Writer {
+    to: std::sync::mpsc::Sender<Vec<u8>>,
+    from: std::sync::mpsc::Receiver<(Vec<u8>, Result<(), String>)>,
+    spare: Option<Vec<u8>>,
 }
 
 impl Checkpointer {
     /// For a stage started with `resume` (its state directory, if any).
     pub fn new(resume: &Resume, max_words: usize) -> Self {
-        let on = resume.state_dir.is_some();
+        let writer = resume.state_dir.as_ref().map(|_| {
+            let (to, rx) = std::sync::mpsc::channel::<Vec<u8>>();
+            let (tx, from) = std::sync::mpsc::channel();
+            let r = resume.clone();
+            std::thread::spawn(move || {
+                for buf in rx {
+                    let res = r
+                        .write_checkpoint(StageKind::Refine, &buf)
+                        .map_err(|e| e.to_string());
+                    if tx.send((buf, res)).is_err() {
+                        break;
+                    }
+                }
+            });
+            Writer {
+                to,
+                from,
+                spare: Some(Vec::with_capacity((max_words + HEADER) * 8)),
+            }
+        });
         Self {
-            resume: resume.clone(),
-            buf: Vec::with_capacity(if on { (max_words + HEADER) * 8 } else { 0 }),
+            writer,
+            pending: false,
             written: 0,
             failed: 0,
-            last_cost: Duration::ZERO,
         }
     }
 
-    /// Save `snapshot` (the words just written for the next version).
-    pub fn save(&mut self, next_id: u32, snapshot: &[u64]) {
-        if self.resume.state_dir.is_none() {
-            return;
+    /// Begin saving `snapshot` (the words of the next version): encoded here
+    /// (a copy), written and synced by the writer thread. Waits for a
+    /// previous checkpoint still in flight (the stage begins one only once
+    /// the previous one is durable, so it does not wait).
+    pub fn begin(&mut self, next_id: u32, snapshot: &[u64]) {
+        while self.pending && !self.is_durable() {
+            std::thread::yield_now();
         }
-        let t0 = Instant::now();
-        encode(next_id, snapshot, &mut self.buf);
-        let res = self.resume.write_checkpoint(StageKind::Refine, &self.buf);
-        self.last_cost = t0.elapsed();
-        match res {
-            Ok(()) => self.written += 1,
-            Err(e) => {
-                if self.failed == 0 {
-                    eprintln!("refine: {e} (the chain will not survive a restart)");
+        let Some(w) = self.writer.as_mut() else {
+            return;
+        };
+        let mut buf = w.spare.take().unwrap_or_default();
+        encode(next_id, snapshot, &mut buf);
+        if w.to.send(buf).is_ok() {
+            self.pending = true;
+        } else {
+            self.failed += 1;
+        }
+    }
+
+    /// Whether the last checkpoint begun is written (or failed: then a
+    /// restart resumes from an older one, as before).
+    pub fn is_durable(&mut self) -> bool {
+        if !self.pending {
+            return true;
+        }
+        let Some(w) = self.writer.as_mut() else {
+            return true;
+        };
+        match w.from.try_recv() {
+            Ok((buf, res)) => {
+                w.spare = Some(buf);
+                self.pending = false;
+                match res {
+                    Ok(()) => self.written += 1,
+                    Err(e) => {
+                        if self.failed == 0 {
+                            eprintln!("refine: {e} (the chain will not survive a restart)");
+                        }
+                        self.failed += 1;
+                    }
                 }
+                true
+            }
+            Err(std::sync::mpsc::TryRecvError::Empty) => false,
+            Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                self.pending = false;
                 self.failed += 1;
+                true
             }
         }
     }
@@ -304,5 +366,34 @@ mod tests {
         words[w] = (n as u64 + 5) | ((n as u64 + 5) << 32);
         encode(a.next_id(), &words, &mut bad);
         assert!(Refiner::resumed(&c, &bad, &r).is_err());
+    }
+
+    #[test]
+    fn a_checkpoint_begun_is_on_disk_once_it_is_durable() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("bb-ckpt-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700)).unwrap();
+        let r = Resume {
+            state_dir: Some(dir.clone()),
+            ..Resume::default()
+        };
+        let mut ck = Checkpointer::new(&r, 16);
+        for (k, words) in [vec![1u64, 2, 3], vec![9u64; 12]].into_iter().enumerate() {
+            ck.begin(40 + k as u32, &words);
+            while !ck.is_durable() {
+                std::thread::yield_now();
+            }
+            assert_eq!(ck.written, k as u64 + 1);
+            let (next, back) = decode(&r.read_checkpoint(StageKind::Refine).unwrap()).unwrap();
+            assert_eq!((next, back), (40 + k as u32, words));
+        }
+        assert_eq!(ck.failed, 0);
+        // Without a state directory nothing is written and all is durable.
+        let mut none = Checkpointer::new(&Resume::default(), 16);
+        none.begin(1, &[5]);
+        assert!(none.is_durable());
+        assert_eq!(none.written, 0);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -35,12 +35,16 @@
 //! *slots* (indices into the arrays); ids are what survives across versions.
 //!
 //! Layout: this file (state, construction entry points, caches),
-//! [`connect`] (ConnectState), [`lists`] (incremental insertion with exact
-//! k-NN lists), [`access`] (views, snapshots, accessors).
+//! [`batch`] (Alg. 2.1 as resumable work), [`connect`] (ConnectState),
+//! [`lists`] (incremental insertion with exact k-NN lists), [`access`]
+//! (views, snapshots, accessors).
 
 mod access;
+mod batch;
 mod connect;
 mod lists;
+
+pub use batch::BatchBuild;
 
 use super::index::{SpatialIndex, MAX_INDEX_DIM};
 use super::kernel::{KernelKind, KernelOutcome, KernelWork};
@@ -182,35 +186,16 @@ impl Chain {
     }
 
     /// Batch construction (Alg. 2.1): all `points` (flat n × d) first, then
-    /// ConnectState for each with the final n.
+    /// ConnectState for each with the final n (in one go; [`BatchBuild`]
+    /// builds the same chain in slices).
     pub fn batch<M: SdeModel + ?Sized>(
         model: &M,
         cfg: ChainConfig,
         points: &[f64],
     ) -> Result<Self, ChainError> {
-        let mut c = Self::new(model, cfg)?;
-        let d = c.dim;
-        if !points.len().is_multiple_of(d) {
-            return Err(ChainError::State("points length is not a multiple of d"));
-        }
-        let n = points.len() / d;
-        c.reserve(n);
-        for p in points.chunks_exact(d) {
-            c.push_state(model, p)?;
-        }
-        c.index = SpatialIndex::from_points(d, points).ok_or(ChainError::State(
-            "kd-tree cannot store the states (too many share coordinate values)",
-        ))?;
-        // The reverse-query tree serves incremental insertion only; it is
-        // built from the lists at the first `add_state` (batch pays nothing).
-        c.rtree = None;
-        // ConnectState in a space-filling-curve order of the states: each
-        // row depends only on the states, so the order changes no result,
-        // but consecutive k-d tree queries then touch the same leaves.
-        for i in super::order::hilbert_order(points, d) {
-            c.connect(i as usize)?;
-        }
-        Ok(c)
+        let mut b = BatchBuild::new(model, cfg, points.to_vec())?;
+        b.run(model, || true)?;
+        b.finish()
     }
 
     /// Batch construction from `n` draws of `sampler`.

@@ -267,3 +267,59 @@ fn reconnection_shrinks_holding_times() {
     let late: f64 = c.holding()[..10].iter().sum();
     assert!(late < 0.3 * early, "{late} vs {early}");
 }
+
+#[test]
+fn a_build_in_slices_is_the_batch_chain() {
+    // Alg. 2.1 connects every state with the final n, so stopping between
+    // units of work changes nothing: one unit per call gives the rows,
+    // holding times and radii of the batch chain bit for bit.
+    let m = ou2(0.5, 1.0, 0.3, 1.0);
+    let mut rng = crate::rng::stream(4, 0);
+    for cfg in [ChainConfig::gaussian(2), ChainConfig::moment_matched(2)] {
+        let pts = Sampler::Uniform.sample_many(m.bounds(), 300, &mut rng);
+        let mut whole = Chain::batch(&m, cfg.clone(), &pts).unwrap();
+        let mut b = BatchBuild::new(&m, cfg, pts.clone()).unwrap();
+        let (_, total) = b.progress();
+        assert_eq!(total, 2 * 300 + 2);
+        let mut calls = 0;
+        let mut last = 0;
+        while !b.run(&m, || false).unwrap() {
+            calls += 1;
+            let (done, _) = b.progress();
+            assert_eq!(done, last + 1, "one unit per call");
+            last = done;
+        }
+        assert_eq!(calls + 1, total);
+        assert_eq!(b.progress(), (total, total));
+        let mut sliced = b.finish().unwrap();
+        assert_eq!(sliced.holding(), whole.holding());
+        assert_eq!(sliced.radius(), whole.radius());
+        let (vs, vw) = (sliced.view(), whole.view());
+        assert_eq!(
+            (vs.row_offsets, vs.cols, vs.probs),
+            (vw.row_offsets, vw.cols, vw.probs)
+        );
+    }
+}
+
+#[test]
+fn an_unfinished_build_is_not_a_chain() {
+    let m = ou2(0.5, 1.0, 0.3, 1.0);
+    let pts = Sampler::Uniform.sample_many(m.bounds(), 50, &mut crate::rng::stream(5, 0));
+    let mut b = BatchBuild::new(&m, ChainConfig::gaussian(2), pts).unwrap();
+    let mut budget = 60;
+    assert!(!b
+        .run(&m, || {
+            budget -= 1;
+            budget > 0
+        })
+        .unwrap());
+    assert_eq!(b.progress().0, 60);
+    assert!(!b.is_done());
+    assert!(matches!(b.finish(), Err(ChainError::State(_))));
+    // Points of the wrong length are refused with a typed error.
+    assert!(matches!(
+        BatchBuild::new(&m, ChainConfig::gaussian(2), vec![0.0; 3]),
+        Err(ChainError::State(_))
+    ));
+}
