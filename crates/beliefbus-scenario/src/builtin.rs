@@ -211,7 +211,10 @@ mod tests {
         assert_eq!(vdp.controllers, ["none"]);
         // A discrete-time scenario offers only its own backends.
         let arx = info[2].as_ref().unwrap();
-        assert_eq!((arx.name, arx.state, arx.control, arx.obs), ("arx", 6, 1, 2));
+        assert_eq!(
+            (arx.name, arx.state, arx.control, arx.obs),
+            ("arx", 6, 1, 2)
+        );
         assert_eq!(arx.filters, ["rbpf-changepoint"]);
         assert_eq!(arx.controllers, ["arx-adaptive", "none"]);
     }

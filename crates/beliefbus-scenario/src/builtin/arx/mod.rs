@@ -312,3 +312,6 @@ impl System for ArxSystem {
         Some(Box::new(metrics::ArxMetrics::new(self)))
     }
 }
+
+#[cfg(test)]
+mod tests;
