@@ -269,7 +269,8 @@ fn backend_names_are_the_serde_names_and_parse_back() {
     let e = err(BASE, &["filter.backend=PF"]);
     assert_eq!(e.key, "filter.backend");
     assert!(
-        e.problem.contains("scenario ship offers: chain, pf, ekf, ukf"),
+        e.problem
+            .contains("scenario ship offers: chain, pf, ekf, ukf"),
         "{e}"
     );
     let e = err(BASE, &["control.backend=arx-adaptive"]);
