@@ -223,11 +223,16 @@ fn scenarios_lists_the_registry_with_each_ones_backends() {
         "{out}"
     );
     assert!(out.contains("control.backend: none\n"), "{out}");
+    // A discrete-time scenario lists only the backends it brings.
+    assert!(
+        out.contains("filter.backend: rbpf-changepoint; control.backend: arx-adaptive | none"),
+        "{out}"
+    );
     // An unknown scenario is a config error naming the registered ones.
     let o = run_elsewhere(&["run", "--scenario", "warp", "--duration", "1"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(
-        stderr(&o).contains("registered: ship, vanderpol"),
+        stderr(&o).contains("registered: ship, vanderpol, arx"),
         "{}",
         stderr(&o)
     );

@@ -14,7 +14,9 @@
 
 use beliefbus::model::affine::{ControlAffine, PathStructure};
 use beliefbus::model::{Bounds, Dims, SdeJacobians, SdeModel};
-use beliefbus::scenario::{BuildContext, DynAffine, DynModel, Scenario, SensorChannel, System};
+use beliefbus::scenario::{
+    BuildContext, DynAffine, DynModel, Dynamics, Scenario, SensorChannel, System,
+};
 use serde::{Deserialize, Serialize};
 
 /// `[pendulum]`: the physical parameters (every key optional).
@@ -195,8 +197,8 @@ impl Scenario for PendulumScenario {
 }
 
 impl System for PendulumSystem {
-    fn model(&self) -> DynModel {
-        self.model.clone()
+    fn dynamics(&self) -> Dynamics {
+        Dynamics::Sde(self.model.clone())
     }
     fn control_affine(&self) -> Option<DynAffine> {
         Some(self.affine.clone())

@@ -1,9 +1,12 @@
 //! The scenarios that ship with beliefbus, registered through the same
 //! [`Scenario`] API a user's crate uses.
 
-use super::{BuildContext, DynAffine, DynModel, Scenario, SensorChannel, System};
+use super::{BuildContext, DynAffine, DynModel, Dynamics, Scenario, SensorChannel, System};
 use crate::model::ship::{Ship, ShipParams};
 use crate::model::vanderpol::{VanDerPol, VanDerPolParams};
+
+pub mod arx;
+pub use arx::ArxScenario;
 
 /// The drifting ship of paper 001 eq. (10)–(11) with a control force,
 /// range–bearing sensor, waypoint route.
@@ -36,8 +39,8 @@ impl Scenario for ShipScenario {
 }
 
 impl System for ShipSystem {
-    fn model(&self) -> DynModel {
-        self.model.clone()
+    fn dynamics(&self) -> Dynamics {
+        Dynamics::Sde(self.model.clone())
     }
     fn control_affine(&self) -> Option<DynAffine> {
         Some(self.affine.clone())
@@ -94,8 +97,8 @@ impl Scenario for VanDerPolScenario {
 }
 
 impl System for VanDerPolSystem {
-    fn model(&self) -> DynModel {
-        self.model.clone()
+    fn dynamics(&self) -> Dynamics {
+        Dynamics::Sde(self.model.clone())
     }
     fn position_axes(&self) -> &[usize] {
         &[0]
@@ -139,7 +142,7 @@ mod tests {
         let s = build("ship");
         let x = [-3.0, 4.0, 0.0, 0.0];
         let mut y = [0.0; 2];
-        s.model().obs_mean(&x, &mut y);
+        s.sde_model().unwrap().obs_mean(&x, &mut y);
         let mut p = [0.0; 2];
         assert!(s.raw_position(&y, &mut p));
         assert!((p[0] + 3.0).abs() < 1e-12 && (p[1] - 4.0).abs() < 1e-12);
@@ -149,7 +152,7 @@ mod tests {
     #[test]
     fn vanderpol_builds_its_model() {
         let s = build("vanderpol");
-        let m = s.model();
+        let m = s.sde_model().unwrap();
         assert_eq!(m.dims().state, 2);
         assert_eq!(m.name(), "vanderpol");
         let mut f = [0.0; 2];
@@ -181,10 +184,12 @@ mod tests {
         partial.insert("e".into(), 0.5.into());
         let sys = e.build(Some(&partial), &ctx).unwrap();
         let mut f = [0.0; 16];
-        sys.model().diffusion(&[1.0, 1.0, 0.0, 0.0], &mut f);
+        sys.sde_model()
+            .unwrap()
+            .diffusion(&[1.0, 1.0, 0.0, 0.0], &mut f);
         assert_eq!(f.iter().fold(0.0f64, |m, v| m.max(v.abs())), 0.5);
         let mut std = [0.0; 2];
-        sys.model().obs_std(&mut std);
+        sys.sde_model().unwrap().obs_std(&mut std);
         assert_eq!(std[0], ShipParams::paper(0.01).range_std);
         t.insert("ee".into(), 1.0.into());
         let err = e.build(Some(&t), &ctx).err().unwrap();
@@ -204,5 +209,13 @@ mod tests {
         assert_eq!(ship.controllers, ["implicit", "mppi", "none"]);
         let vdp = info[1].as_ref().unwrap();
         assert_eq!(vdp.controllers, ["none"]);
+        // A discrete-time scenario offers only its own backends.
+        let arx = info[2].as_ref().unwrap();
+        assert_eq!(
+            (arx.name, arx.state, arx.control, arx.obs),
+            ("arx", 6, 1, 2)
+        );
+        assert_eq!(arx.filters, ["rbpf-changepoint"]);
+        assert_eq!(arx.controllers, ["arx-adaptive", "none"]);
     }
 }

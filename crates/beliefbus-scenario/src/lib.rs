@@ -7,12 +7,19 @@
 //!   serde into [`Scenario::Params`]), a complete pipeline config that runs
 //!   it (embedded in the binary, so `beliefbus run --scenario NAME` works
 //!   from any directory), and [`Scenario::build`];
-//! - [`System`], what `build` returns: the model (the [`SdeModel`] and
-//!   [`SdeJacobians`] traits stay the model contract), optional
-//!   capabilities (the control-affine view of paper 003 eq. 7 for the
-//!   implicit path-integral controller), the plant simulation, the sensor
-//!   channels, the prior and the initial state, and what the accuracy
-//!   report and the route measure ("position" axes).
+//! - [`System`], what `build` returns: its [`Dynamics`] — an SDE model
+//!   (the [`SdeModel`] and [`SdeJacobians`] traits), on which every
+//!   built-in backend runs, or a discrete-time system whose plant steps
+//!   once per sensor sample ([`Plant::step`]) — optional capabilities (the
+//!   control-affine view of paper 003 eq. 7 for the implicit path-integral
+//!   controller), the plant simulation, the sensor channels, the prior and
+//!   the initial state, and what the accuracy report and the route measure
+//!   ("position" axes);
+//! - the system's **own backends**, offered by name: a filter
+//!   ([`System::filter_backend`]) or controller ([`System::controller`])
+//!   that `filter.backend` / `control.backend` select exactly like the
+//!   built-in ones, and its own report figures ([`System::run_metrics`],
+//!   the report's `scenario_metrics.<scenario>` section).
 //!
 //! The built-in scenarios ([`builtin`]) register through the same API a
 //! user's crate uses ([`Registry::with`]); the stages, the launcher and the
@@ -23,16 +30,22 @@
 // The core modules under the names the scenario code uses.
 use beliefbus_core::{model, rng};
 
+pub mod backends;
 pub mod builtin;
 pub mod handle;
+pub mod metrics;
 pub mod registry;
 
+pub use backends::{ControlContext, FilterContext};
 pub use handle::{DynAffine, DynModel, PipelineModel};
+pub use metrics::{BeliefView, ControlView, RunMetrics, TruthView};
 pub use registry::{Registry, ScenarioInfo};
 
 use crate::model::discrete::em_integrate;
-use crate::model::{simulate_observation, SdeModel};
+use crate::model::{simulate_observation, Dims, SdeModel};
 use crate::rng::SimRng;
+use beliefbus_core::control::Controller;
+use beliefbus_core::filter::BayesFilter;
 use beliefbus_core::{MAX_CONTROL, MAX_NOISE, MAX_STATE};
 use serde::de::DeserializeOwned;
 use serde::Serialize;
@@ -97,10 +110,79 @@ pub struct SensorChannel {
     pub components: Vec<usize>,
 }
 
+/// How a system evolves in time.
+#[derive(Clone, Debug)]
+pub enum Dynamics {
+    /// Continuous time: an SDE model. The plant integrates it between
+    /// sensor samples, and every built-in backend (`pf`, `ekf`, `ukf`,
+    /// `chain`, `mppi`, `implicit`) runs on it.
+    Sde(DynModel),
+    /// Discrete time: the plant steps once per sensor sample
+    /// ([`Plant::step`]); the step index is the sample's sequence number.
+    /// The built-in backends need an SDE model and are refused at
+    /// validation: the system runs its own ([`System::filter_backend`],
+    /// [`System::controller`]).
+    Discrete(DiscreteSpec),
+}
+
+/// What the pipeline must know of a discrete-time system: its name, its
+/// dimensions and its observation noise (the σ a measurement without its
+/// own has). Its transition and likelihood live in its own backends.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DiscreteSpec {
+    pub name: &'static str,
+    /// State, observation and control dimensions (`noise` unused).
+    pub dims: Dims,
+    /// Observation noise std per component (length `dims.obs`).
+    pub obs_std: Vec<f64>,
+}
+
+impl Dynamics {
+    /// The model's name.
+    pub fn name(&self) -> &str {
+        match self {
+            Dynamics::Sde(m) => m.name(),
+            Dynamics::Discrete(d) => d.name,
+        }
+    }
+    /// Its dimensions.
+    pub fn dims(&self) -> Dims {
+        match self {
+            Dynamics::Sde(m) => m.dims(),
+            Dynamics::Discrete(d) => d.dims,
+        }
+    }
+    /// The SDE model (`None`: discrete time).
+    pub fn sde(&self) -> Option<DynModel> {
+        match self {
+            Dynamics::Sde(m) => Some(m.clone()),
+            Dynamics::Discrete(_) => None,
+        }
+    }
+    /// Observation noise std into `std[..dims().obs]`.
+    pub fn obs_std(&self, std: &mut [f64]) {
+        match self {
+            Dynamics::Sde(m) => m.obs_std(std),
+            Dynamics::Discrete(d) => std[..d.obs_std.len()].copy_from_slice(&d.obs_std),
+        }
+    }
+}
+
 /// A built scenario: the model and what the pipeline needs around it.
 pub trait System: Send + Sync {
-    /// The model every filter and MPPI run on.
-    fn model(&self) -> DynModel;
+    /// How it evolves: an SDE model (every built-in backend runs on it) or
+    /// a discrete-time system (only its own backends run on it).
+    fn dynamics(&self) -> Dynamics;
+
+    /// The SDE model (`None` for a discrete-time system).
+    fn sde_model(&self) -> Option<DynModel> {
+        self.dynamics().sde()
+    }
+
+    /// State, observation and control dimensions.
+    fn dims(&self) -> Dims {
+        self.dynamics().dims()
+    }
 
     /// The control-affine view (paper 003 eq. 7) the implicit path-integral
     /// controller needs; `None`: that controller is refused at validation.
@@ -133,21 +215,68 @@ pub trait System: Send + Sync {
         vec![SensorChannel {
             id: 0,
             name: "sensor",
-            components: (0..self.model().dims().obs).collect(),
+            components: (0..self.dims().obs).collect(),
         }]
     }
 
     /// The simulated plant started at `x0` (seeded, integrating with steps
     /// of at most `max_dt`). Default: Euler–Maruyama on the model's SDE and
-    /// its observation model.
-    fn plant(&self, x0: &[f64], seed: u64, max_dt: f64) -> Box<dyn Plant> {
-        Box::new(SdePlant::new(self.model(), x0, seed, max_dt))
+    /// its observation model; a discrete-time system must supply its own
+    /// (the default then refuses to build).
+    fn plant(&self, x0: &[f64], seed: u64, max_dt: f64) -> Result<Box<dyn Plant>, String> {
+        match self.dynamics() {
+            Dynamics::Sde(m) => Ok(Box::new(SdePlant::new(m, x0, seed, max_dt))),
+            Dynamics::Discrete(d) => Err(format!(
+                "the discrete-time system {} has no plant simulation (System::plant)",
+                d.name
+            )),
+        }
+    }
+
+    /// Names of the filter backends this system supplies itself (config
+    /// `filter.backend`), beside the built-in ones.
+    fn filter_backends(&self) -> Vec<&'static str> {
+        Vec::new()
+    }
+
+    /// Build its filter backend `name`: `None` when it offers no such
+    /// backend, `Err` (one line) when the backend cannot be built from its
+    /// settings. Called once at validation and once when the filter stage
+    /// starts.
+    fn filter_backend(
+        &self,
+        _name: &str,
+        _ctx: &FilterContext,
+    ) -> Option<Result<Box<dyn BayesFilter>, String>> {
+        None
+    }
+
+    /// Names of the controllers this system supplies itself (config
+    /// `control.backend`), beside the built-in ones.
+    fn controller_backends(&self) -> Vec<&'static str> {
+        Vec::new()
+    }
+
+    /// Build its controller `name` (as [`System::filter_backend`]).
+    fn controller(
+        &self,
+        _name: &str,
+        _ctx: &ControlContext,
+    ) -> Option<Result<Box<dyn Controller>, String>> {
+        None
+    }
+
+    /// The system's own figures for the run report (section
+    /// `scenario_metrics.<scenario>`), fed with the truth, the beliefs and
+    /// the controls the launcher sees; `None`: no section.
+    fn run_metrics(&self) -> Option<Box<dyn RunMetrics>> {
+        None
     }
 }
 
 impl std::fmt::Debug for dyn System {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "System({})", self.model().name())
+        write!(f, "System({})", self.dynamics().name())
     }
 }
 
@@ -164,6 +293,11 @@ pub trait Plant: Send {
     /// Draw a measurement of the current state into `y` (the model's
     /// observation dimension).
     fn measure(&mut self, y: &mut [f64]);
+    /// A discrete-time plant's transition, once per sensor sample, after
+    /// the control in force was set and before [`Plant::measure`]:
+    /// x_k = F(x_{k−1}, u_{k−1}, w_k). Default: nothing (an SDE plant moves
+    /// in [`Plant::advance`], which a discrete-time plant leaves empty).
+    fn step(&mut self) {}
 }
 
 /// RNG stream id of the plant (mixed with `run.seed`).

@@ -133,7 +133,8 @@ impl Registry {
     pub fn builtin() -> Self {
         let mut r = Self::empty()
             .with::<super::builtin::ShipScenario>()
-            .with::<super::builtin::VanDerPolScenario>();
+            .with::<super::builtin::VanDerPolScenario>()
+            .with::<super::builtin::ArxScenario>();
         r.builtin_only = true;
         r.default = Some(super::builtin::ShipScenario::NAME);
         r
@@ -193,7 +194,7 @@ impl Registry {
                 let sys = e
                     .build(None, &ctx)
                     .map_err(|p| format!("{}: {}", e.name, p.problem))?;
-                let dims = sys.model().dims();
+                let dims = sys.dims();
                 Ok(ScenarioInfo {
                     name: e.name,
                     summary: e.summary,
@@ -213,26 +214,35 @@ impl Registry {
     }
 }
 
-/// Filter backends `sys` supports (`chain` needs noise on every coordinate
-/// at the prior mean).
+/// Filter backends `sys` supports: the built-in ones on an SDE model
+/// (`chain` needs noise on every coordinate at the prior mean), then its
+/// own.
 pub fn supported_filters(sys: &dyn System) -> Vec<&'static str> {
-    let mut v = vec!["pf", "ekf", "ukf"];
-    if super::full_rank_diffusion(&sys.model(), &sys.prior().0) {
-        v.insert(0, "chain");
+    let mut v = Vec::new();
+    if let Some(m) = sys.sde_model() {
+        if super::full_rank_diffusion(&m, &sys.prior().0) {
+            v.push("chain");
+        }
+        v.extend(["pf", "ekf", "ukf"]);
     }
+    v.extend(sys.filter_backends());
     v
 }
 
-/// Controller backends `sys` supports (MPPI needs a control input; the
-/// implicit path-integral controller its control-affine view).
+/// Controller backends `sys` supports: on an SDE model with a control
+/// input MPPI (and the implicit path-integral controller with its
+/// control-affine view), then its own, then `none`.
 pub fn supported_controllers(sys: &dyn System) -> Vec<&'static str> {
     let mut v = Vec::new();
-    if sys.model().dims().control > 0 {
-        if sys.control_affine().is_some() {
-            v.push("implicit");
+    if let Some(m) = sys.sde_model() {
+        if m.dims().control > 0 {
+            if sys.control_affine().is_some() {
+                v.push("implicit");
+            }
+            v.push("mppi");
         }
-        v.push("mppi");
     }
+    v.extend(sys.controller_backends());
     v.push("none");
     v
 }

@@ -10,6 +10,7 @@
 //! - [`control`]: rules (18) and (20);
 //! - [`plant`]: a simulator of the model, optionally with stable AR parts.
 
+pub mod bootstrap;
 pub mod control;
 pub mod linalg;
 pub mod ls;

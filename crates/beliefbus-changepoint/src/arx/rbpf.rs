@@ -235,6 +235,11 @@ impl<const D: usize> ArxRbpf<D> {
             .sum()
     }
 
+    /// The normalised weights W_j (uniform right after a rejuvenation).
+    pub fn weights(&self) -> &[f64] {
+        &self.w
+    }
+
     /// Particle j's (C, μ, V).
     pub fn particle(&self, j: usize) -> Option<(u64, &Vector<D>, &Matrix<D>)> {
         Some((*self.c.get(j)?, self.mu.get(j)?, self.v.get(j)?))

@@ -52,6 +52,11 @@ pub trait Controller: Send {
     /// rollouts' noise). A stage calls it right after publishing a control;
     /// `compute` stays correct when it was not called.
     fn prepare(&mut self) {}
+    /// The step of the next belief: the sequence number of the sensor
+    /// sample it was updated with (a discrete-time system's time index).
+    /// A stage calls it before each `compute`; continuous-time controllers
+    /// use `compute`'s `t` and ignore it.
+    fn set_step(&mut self, _k: u64) {}
     /// Compute the control to apply at time `t` given the belief, into `u`.
     fn compute(
         &mut self,

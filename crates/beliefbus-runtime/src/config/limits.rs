@@ -23,7 +23,6 @@
 
 use super::{ConfigError, PipelineConfig};
 use crate::ipc::StageKind;
-use crate::model::SdeModel;
 use std::time::Duration;
 
 /// A config-sized structure may use at most 1/32 of physical memory.
@@ -134,7 +133,7 @@ impl PipelineConfig {
     pub(super) fn validate_limits(&self) -> Result<(), ConfigError> {
         // Long on purpose: one flat check per hard limit, each with its key
         // and the reason for the limit in its message.
-        let dims = self.model()?.dims();
+        let dims = self.dims()?;
         let (d, c) = (dims.state as f64, dims.control as f64);
         let sample_dt = self.sample_dt();
         let r = &self.run;

@@ -240,15 +240,15 @@ fn an_integration_step_too_coarse_for_the_model_is_refused_at_validation() {
 
 #[test]
 fn backend_names_are_the_serde_names_and_parse_back() {
-    use strum::VariantNames;
     let serde_name = |v: serde_json::Value| v.as_str().unwrap().to_string();
     for b in [
         FilterBackend::Pf,
         FilterBackend::Ekf,
         FilterBackend::Ukf,
         FilterBackend::Chain,
+        FilterBackend::Scenario("rbpf-changepoint".into()),
     ] {
-        assert_eq!(serde_name(serde_json::to_value(b).unwrap()), b.name());
+        assert_eq!(serde_name(serde_json::to_value(&b).unwrap()), b.name());
         assert_eq!(b.to_string(), b.name());
         assert_eq!(b.name().parse::<FilterBackend>().unwrap(), b);
     }
@@ -256,14 +256,63 @@ fn backend_names_are_the_serde_names_and_parse_back() {
         ControlBackend::Mppi,
         ControlBackend::Implicit,
         ControlBackend::None,
+        ControlBackend::Scenario("arx-adaptive".into()),
     ] {
-        assert_eq!(serde_name(serde_json::to_value(b).unwrap()), b.name());
+        assert_eq!(serde_name(serde_json::to_value(&b).unwrap()), b.name());
         assert_eq!(b.name().parse::<ControlBackend>().unwrap(), b);
     }
     // The names users write in configs and read in reports.
-    assert_eq!(FilterBackend::VARIANTS, ["pf", "ekf", "ukf", "chain"]);
-    assert_eq!(ControlBackend::VARIANTS, ["mppi", "implicit", "none"]);
-    assert!("PF".parse::<FilterBackend>().is_err());
+    assert_eq!(FilterBackend::BUILTIN, ["pf", "ekf", "ukf", "chain"]);
+    assert_eq!(ControlBackend::BUILTIN, ["mppi", "implicit", "none"]);
+    // Any other name is a scenario's, refused at validation when the
+    // scenario does not offer it, naming what it offers.
+    assert_eq!(
+        "PF".parse::<FilterBackend>().unwrap(),
+        FilterBackend::Scenario("PF".into())
+    );
+    let e = err(BASE, &["filter.backend=PF"]);
+    assert_eq!(e.key, "filter.backend");
+    assert!(
+        e.problem
+            .contains("scenario ship offers: chain, pf, ekf, ukf"),
+        "{e}"
+    );
+    let e = err(BASE, &["control.backend=arx-adaptive"]);
+    assert_eq!(e.key, "control.backend");
+    assert!(e.problem.contains("implicit, mppi, none"), "{e}");
+}
+
+#[test]
+fn a_discrete_time_scenario_runs_only_its_own_backends() {
+    let registry = crate::scenario::Registry::builtin();
+    let arx = registry.get("arx").unwrap().config;
+    let c = load_str(arx, &[]).unwrap();
+    assert_eq!(
+        c.filter.backend,
+        FilterBackend::Scenario("rbpf-changepoint".into())
+    );
+    assert_eq!(
+        c.control.backend,
+        ControlBackend::Scenario("arx-adaptive".into())
+    );
+    assert!(c.model().is_err(), "no SDE model");
+    assert_eq!(c.dims().unwrap().state, 6);
+    // Built-in backends need an SDE model: refused, naming what it offers.
+    let e = err(arx, &["filter.backend=pf"]);
+    assert_eq!(e.key, "filter.backend");
+    assert!(e.problem.contains("discrete-time"), "{e}");
+    assert!(e.problem.contains("offers: rbpf-changepoint"), "{e}");
+    let e = err(arx, &["control.backend=mppi"]);
+    assert_eq!(e.key, "control.backend");
+    assert!(e.problem.contains("offers: arx-adaptive, none"), "{e}");
+    let e = err(arx, &["filter.backend=kalman"]);
+    assert!(e.problem.contains("unknown backend \"kalman\""), "{e}");
+    // The backends' own settings are checked before anything starts.
+    let e = err(arx, &["arx.control.rule=19"]);
+    assert!(e.problem.contains("rule must be 18 or 20"), "{e}");
+    let e = err(arx, &["arx.filter.scheme=\"stratified\""]);
+    assert!(e.problem.contains("scheme"), "{e}");
+    assert!(load_str(arx, &["control.backend=none".into()]).is_ok());
 }
 
 #[test]

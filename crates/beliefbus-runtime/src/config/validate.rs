@@ -60,7 +60,7 @@ impl PipelineConfig {
     /// controller).
     pub fn control_limits(&self) -> Result<crate::ipc::ControlLimits, ConfigError> {
         use crate::ipc::ControlLimits;
-        let dim = self.model()?.dims().control;
+        let dim = self.dims()?.control;
         Ok(match self.control.backend {
             ControlBackend::Mppi => {
                 ControlLimits::new(&self.control.mppi.u_min, &self.control.mppi.u_max)
@@ -69,7 +69,8 @@ impl PipelineConfig {
                 let m = self.control.implicit.u_max;
                 ControlLimits::new(&vec![-m; dim], &vec![m; dim])
             }
-            ControlBackend::None => ControlLimits::finite(dim),
+            // A scenario's controller: any finite control.
+            ControlBackend::None | ControlBackend::Scenario(_) => ControlLimits::finite(dim),
         })
     }
 
@@ -120,15 +121,33 @@ impl PipelineConfig {
             .map_or_else(Registry::builtin, |s| s.registry.clone())
     }
 
-    /// The scenario's model.
+    /// The scenario's SDE model (an error for a discrete-time scenario).
     pub fn model(&self) -> Result<DynModel, ConfigError> {
+        self.dynamics()?.sde().ok_or_else(|| {
+            ConfigError::new(
+                "run.scenario",
+                format!(
+                    "scenario {} is discrete-time: it has no SDE model",
+                    self.run.scenario
+                ),
+            )
+        })
+    }
+
+    /// How the scenario's system evolves.
+    pub fn dynamics(&self) -> Result<crate::scenario::Dynamics, ConfigError> {
         match &self.scenario {
-            Some(s) => Ok(s.system.model()),
+            Some(s) => Ok(s.system.dynamics()),
             None => Err(ConfigError::new(
                 "run.scenario",
                 "the config was not loaded (scenario unresolved)",
             )),
         }
+    }
+
+    /// The system's state, observation and control dimensions.
+    pub fn dims(&self) -> Result<crate::model::Dims, ConfigError> {
+        self.dynamics().map(|d| d.dims())
     }
 
     /// The filter's prior N(prior_mean, diag(prior_std²)).
@@ -232,8 +251,8 @@ impl PipelineConfig {
                 ),
             ));
         }
-        let model = self.model()?;
-        let dims = model.dims();
+        let dynamics = self.dynamics()?;
+        let dims = dynamics.dims();
         len_is(
             "plant.initial_state",
             &p.initial_state,
@@ -310,46 +329,21 @@ impl PipelineConfig {
         if !(f.max_obs_age_us.is_finite() && f.max_obs_age_us >= 0.0) {
             return Err(ConfigError::new("filter.max_obs_age_us", "must be >= 0"));
         }
-        // The integration step of the filter that will run (the chain
-        // backend's fallback is the EKF) against the model's time scales:
-        // a step too coarse for the drift is refused here, not at start.
-        {
-            use crate::filter::build::{check_step, BuildError, StepRule};
-            let (key, step, rule) = match f.backend {
-                FilterBackend::Pf => ("filter.pf.max_dt", f.pf.max_dt, StepRule::EulerMaruyama),
-                FilterBackend::Ekf | FilterBackend::Chain => {
-                    ("filter.ekf.max_dt", f.ekf.max_dt, StepRule::Rk4)
-                }
-                FilterBackend::Ukf => ("filter.ukf.max_dt", f.ukf.max_dt, StepRule::Rk4),
-            };
-            match check_step(&model, &self.prior(), key, step, rule, 0) {
-                Ok(()) => {}
-                Err(BuildError::Config(e)) => return Err(ConfigError::new(key, e.problem)),
-                Err(e) => return Err(ConfigError::new("filter", e.to_string())),
-            }
-        }
-        if f.backend == FilterBackend::Chain
-            && !crate::scenario::full_rank_diffusion(&model, &f.prior_mean)
-        {
-            return Err(ConfigError::new(
-                "filter.backend",
-                format!(
-                    "scenario {}: the chain filter needs noise on every state coordinate \
-                     (F Fᵀ of full rank), and this model's diffusion is singular at the prior \
-                     mean; use \"pf\", \"ekf\" or \"ukf\"",
-                    self.run.scenario
-                ),
-            ));
+        if let FilterBackend::Scenario(name) = &f.backend {
+            self.validate_scenario_filter(name)?;
+        } else {
+            let model = self.sde_for("filter.backend", f.backend.name(), &dynamics)?;
+            self.validate_sde_filter(&model)?;
         }
 
-        self.validate_control(&model)?;
+        self.validate_control(&dynamics)?;
 
         self.refine.validate()?;
         let u0 = &self.refine.reference_control;
-        if !(u0.is_empty() || u0.len() == model.dims().control) {
+        if !(u0.is_empty() || u0.len() == dims.control) {
             return Err(ConfigError::new(
                 "refine.reference_control",
-                format!("needs {} entries (or none)", model.dims().control),
+                format!("needs {} entries (or none)", dims.control),
             ));
         }
         if u0.iter().any(|v| !v.is_finite()) {
@@ -407,7 +401,101 @@ impl PipelineConfig {
         self.validate_limits()
     }
 
-    fn validate_control(&self, model: &DynModel) -> Result<(), ConfigError> {
+    /// The SDE model a built-in backend (`name` at `key`) needs; refused on
+    /// a discrete-time scenario, naming the backends it offers.
+    fn sde_for(
+        &self,
+        key: &str,
+        name: &str,
+        dynamics: &crate::scenario::Dynamics,
+    ) -> Result<DynModel, ConfigError> {
+        dynamics.sde().ok_or_else(|| {
+            let sys = self.system();
+            let offers = if key == "filter.backend" {
+                crate::scenario::registry::supported_filters(sys)
+            } else {
+                crate::scenario::registry::supported_controllers(sys)
+            };
+            ConfigError::new(
+                key,
+                format!(
+                    "scenario {} is discrete-time and the built-in backend \"{name}\" needs an \
+                     SDE model; scenario {} offers: {}",
+                    self.run.scenario,
+                    self.run.scenario,
+                    offers.join(", ")
+                ),
+            )
+        })
+    }
+
+    /// A scenario's own filter: offered by the scenario, and buildable.
+    fn validate_scenario_filter(&self, name: &str) -> Result<(), ConfigError> {
+        let sys = self.system();
+        let ctx = crate::scenario::FilterContext {
+            seed: self.run.seed,
+            sample_dt: self.sample_dt(),
+            start: self.prior(),
+            resumed: false,
+            t0: 0.0,
+        };
+        match sys.filter_backend(name, &ctx) {
+            Some(Ok(_)) => Ok(()),
+            Some(Err(e)) => Err(ConfigError::new(
+                "filter.backend",
+                format!("scenario {}, backend \"{name}\": {e}", self.run.scenario),
+            )),
+            None => Err(ConfigError::new(
+                "filter.backend",
+                format!(
+                    "unknown backend \"{name}\"; scenario {} offers: {}",
+                    self.run.scenario,
+                    crate::scenario::registry::supported_filters(sys).join(", ")
+                ),
+            )),
+        }
+    }
+
+    /// The built-in filters' checks against the SDE model.
+    fn validate_sde_filter(&self, model: &DynModel) -> Result<(), ConfigError> {
+        let f = &self.filter;
+        // The integration step of the filter that will run (the chain
+        // backend's fallback is the EKF) against the model's time scales:
+        // a step too coarse for the drift is refused here, not at start.
+        {
+            use crate::filter::build::{check_step, BuildError, StepRule};
+            let (key, step, rule) = match f.backend {
+                FilterBackend::Pf => ("filter.pf.max_dt", f.pf.max_dt, StepRule::EulerMaruyama),
+                FilterBackend::Ekf | FilterBackend::Chain => {
+                    ("filter.ekf.max_dt", f.ekf.max_dt, StepRule::Rk4)
+                }
+                FilterBackend::Ukf => ("filter.ukf.max_dt", f.ukf.max_dt, StepRule::Rk4),
+                FilterBackend::Scenario(_) => return Ok(()),
+            };
+            match check_step(model, &self.prior(), key, step, rule, 0) {
+                Ok(()) => {}
+                Err(BuildError::Config(e)) => return Err(ConfigError::new(key, e.problem)),
+                Err(e) => return Err(ConfigError::new("filter", e.to_string())),
+            }
+        }
+        if f.backend == FilterBackend::Chain
+            && !crate::scenario::full_rank_diffusion(model, &f.prior_mean)
+        {
+            return Err(ConfigError::new(
+                "filter.backend",
+                format!(
+                    "scenario {}: the chain filter needs noise on every state coordinate \
+                     (F Fᵀ of full rank), and this model's diffusion is singular at the prior \
+                     mean; use \"pf\", \"ekf\" or \"ukf\"",
+                    self.run.scenario
+                ),
+            ));
+        }
+
+        Ok(())
+    }
+
+    fn validate_control(&self, dynamics: &crate::scenario::Dynamics) -> Result<(), ConfigError> {
         // Long on purpose: one flat check per `[control]` key, in key order.
         let c = &self.control;
         if !(c.max_belief_age_us.is_finite() && c.max_belief_age_us >= 0.0) {
@@ -416,9 +504,12 @@ impl PipelineConfig {
                 "must be >= 0",
             ));
         }
-        if c.backend == ControlBackend::None {
-            return Ok(());
+        match &c.backend {
+            ControlBackend::None => return Ok(()),
+            ControlBackend::Scenario(name) => return self.validate_scenario_controller(name),
+            ControlBackend::Mppi | ControlBackend::Implicit => {}
         }
+        let model = self.sde_for("control.backend", c.backend.name(), dynamics)?;
         let dims = model.dims();
         if dims.control == 0 {
             return Err(ConfigError::new(
@@ -507,7 +598,31 @@ impl PipelineConfig {
                         )
                     })
             }
-            ControlBackend::None => Ok(()),
+            ControlBackend::None | ControlBackend::Scenario(_) => Ok(()),
+        }
+    }
+
+    /// A scenario's own controller: offered by the scenario, and buildable.
+    fn validate_scenario_controller(&self, name: &str) -> Result<(), ConfigError> {
+        let sys = self.system();
+        let ctx = crate::scenario::ControlContext {
+            seed: self.run.seed,
+            sample_dt: self.sample_dt(),
+        };
+        match sys.controller(name, &ctx) {
+            Some(Ok(_)) => Ok(()),
+            Some(Err(e)) => Err(ConfigError::new(
+                "control.backend",
+                format!("scenario {}, controller \"{name}\": {e}", self.run.scenario),
+            )),
+            None => Err(ConfigError::new(
+                "control.backend",
+                format!(
+                    "unknown backend \"{name}\"; scenario {} offers: {}",
+                    self.run.scenario,
+                    crate::scenario::registry::supported_controllers(sys).join(", ")
+                ),
+            )),
         }
     }
 }

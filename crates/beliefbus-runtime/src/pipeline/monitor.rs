@@ -29,6 +29,9 @@ const MAX_PENDING: usize = 1024;
 /// Accumulated estimation error.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Accuracy {
+    /// The scenario's own figures ([`System::run_metrics`]; `None`: it
+    /// has none).
+    pub scenario: Option<serde_json::Value>,
     pub rmse_position: Option<f64>,
     pub rmse_state: Option<f64>,
     pub rmse_position_raw: Option<f64>,
@@ -52,12 +55,33 @@ pub struct AccuracyTracker {
     n: u64,
     se_raw: f64,
     n_raw: u64,
+    metrics: ScenarioMetrics,
+}
+
+/// The scenario's own accumulator (Debug by name only).
+struct ScenarioMetrics(Option<Box<dyn crate::scenario::RunMetrics>>);
+
+impl std::fmt::Debug for ScenarioMetrics {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() { "Some(..)" } else { "None" })
+    }
+}
+
+fn truth_view(t: &Truth, counted: bool) -> crate::scenario::TruthView<'_> {
+    let (d, m, c) = (t.dim as usize, t.obs_dim as usize, t.control_dim as usize);
+    crate::scenario::TruthView {
+        seq: t.header.seq,
+        t_ns: t.header.t_valid_ns,
+        counted,
+        x: &t.x[..d.min(MAX_STATE)],
+        u: &t.u[..c.min(crate::MAX_CONTROL)],
+        y: &t.y[..m.min(crate::MAX_OBS)],
+    }
 }
 
 impl AccuracyTracker {
     pub fn new(system: Arc<dyn System>, warmup_ns: u64) -> Self {
         Self {
-            system,
             warmup_ns,
             first_ns: None,
             latest_ns: 0,
@@ -68,6 +92,8 @@ impl AccuracyTracker {
             n: 0,
             se_raw: 0.0,
             n_raw: 0,
+            metrics: ScenarioMetrics(system.run_metrics()),
+            system,
         }
     }
 
@@ -78,7 +104,11 @@ impl AccuracyTracker {
 
     /// Add a truth sample (and its raw measurement's error).
     pub fn add_truth(&mut self, t: &Truth) {
-        if self.counted(t.header.t_valid_ns) {
+        let counted = self.counted(t.header.t_valid_ns);
+        if let Some(m) = self.metrics.0.as_mut() {
+            m.truth(&truth_view(t, counted));
+        }
+        if counted {
             let axes = self.system.position_axes();
             let mut raw = [0.0; MAX_STATE];
             if self.system.raw_position(&t.y, &mut raw) {
@@ -129,7 +159,28 @@ impl AccuracyTracker {
             self.se_state += (b.mean[i] - t.x[i]).powi(2);
         }
         self.n += 1;
+        if let Some(m) = self.metrics.0.as_mut() {
+            let bd = (b.dim as usize).min(MAX_STATE);
+            let view = crate::scenario::BeliefView {
+                sensor_seq: seq,
+                mean: &b.mean[..bd],
+                cov: &b.cov[..bd * bd],
+            };
+            m.belief(&view, &truth_view(&t, true));
+        }
         true
+    }
+
+    /// Add a published control (for the scenario's figures).
+    pub fn add_control(&mut self, c: &Control) {
+        if let Some(m) = self.metrics.0.as_mut() {
+            let n = (c.dim as usize).min(crate::MAX_CONTROL);
+            m.control(&crate::scenario::ControlView {
+                sensor_seq: c.trace.sensor_seq,
+                u: &c.u[..n],
+                ok: c.status == crate::ipc::control_status::OK,
+            });
+        }
     }
 
     /// The figures so far.
@@ -141,6 +192,7 @@ impl AccuracyTracker {
             rmse_position_raw: rms(self.se_raw, self.n_raw),
             beliefs: self.n,
             samples: self.n_raw,
+            scenario: self.metrics.0.as_ref().map(|m| m.report()),
         }
     }
 }
@@ -242,6 +294,7 @@ impl Monitor {
             self.last_belief = Some(b);
         }
         while let Some(c) = self.control.receive()? {
+            self.accuracy.add_control(&c);
             if self.controls_are_output {
                 self.output(c.trace.t_sensor_pub_ns, c.header.t_pub_ns);
             }

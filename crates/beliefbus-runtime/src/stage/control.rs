@@ -31,7 +31,6 @@ use crate::ipc::{
     control_status, run_loop, Belief, Bus, Control, Hop, Publisher, StageKind, StageStats,
     Subscriber, Wake,
 };
-use crate::model::SdeModel;
 use crate::rt::Clock;
 use crate::scenario::{DynAffine, DynModel};
 use crate::{MAX_CONTROL, MAX_STATE};
@@ -96,6 +95,8 @@ impl ControlPorts {
 pub enum Backend {
     Mppi(Box<Mppi<DynModel>>),
     Implicit(Box<PathIntegralController<DynAffine>>),
+    /// A controller the scenario supplies.
+    Scenario(Box<dyn Controller>),
 }
 
 impl Backend {
@@ -104,6 +105,7 @@ impl Backend {
         match self {
             Backend::Mppi(m) => m,
             Backend::Implicit(c) => c,
+            Backend::Scenario(c) => c,
         }
     }
 
@@ -111,6 +113,7 @@ impl Backend {
         match self {
             Backend::Mppi(m) => m.as_mut(),
             Backend::Implicit(c) => c.as_mut(),
+            Backend::Scenario(c) => c.as_mut(),
         }
     }
 
@@ -119,6 +122,7 @@ impl Backend {
         match self {
             Backend::Mppi(m) => m.prepare(),
             Backend::Implicit(_) => {}
+            Backend::Scenario(c) => c.prepare(),
         }
     }
 
@@ -129,21 +133,36 @@ impl Backend {
         match self {
             Backend::Mppi(m) => m.config().control_weight,
             Backend::Implicit(c) => 0.5 * c.config().control_cost,
+            // Its cost is its own; the closed-loop cost needs `[control.cost]`.
+            Backend::Scenario(_) => 0.0,
         }
     }
 }
 
 /// Build the configured backend (None for `none`). Its random stream is
 /// seeded from `run.seed` mixed with `control.mppi.seed` or
-/// `control.implicit.seed`.
+/// `control.implicit.seed` (a scenario's controller: with its own stream id).
 pub fn make_backend(cfg: &PipelineConfig) -> Result<Option<Backend>, StageError> {
     let c = &cfg.control;
     let build = |e: &dyn std::fmt::Display| StageError::Build {
         what: "controller",
         reason: e.to_string(),
     };
-    match c.backend {
+    match &c.backend {
         ControlBackend::None => Ok(None),
+        ControlBackend::Scenario(name) => {
+            let ctx = crate::scenario::ControlContext {
+                // Its own stream id ("CTRL"), apart from the filter's.
+                seed: crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(0x4354_524C)),
+                sample_dt: cfg.sample_dt(),
+            };
+            match cfg.system().controller(name, &ctx) {
+                Some(r) => r.map(|c| Some(Backend::Scenario(c))).map_err(|e| build(&e)),
+                None => Err(build(&format!(
+                    "the scenario offers no controller {name:?}"
+                ))),
+            }
+        }
         ControlBackend::Mppi => {
             let model = cfg.model()?;
             let cost = c
@@ -205,8 +224,7 @@ pub fn run_with(
         &[Hop::FilterToControl, Hop::SensorToControl],
         (cfg.run.warmup_s * 1e9) as u64,
     );
-    let model = cfg.model()?;
-    let dims = model.dims();
+    let dims = cfg.dims()?;
     let axes = cfg.system().position_axes();
     let mut backend = make_backend(cfg)?;
     let mut route = match (&backend, &cfg.control.route) {
@@ -294,6 +312,7 @@ pub fn run_with(
                         out.waypoints_reached = r.reached();
                     }
                     let c = dims.control;
+                    backend.controller().set_step(b.trace.sensor_seq);
                     match backend.controller().compute(t, &g, &mut u[..c]) {
                         Ok(info) => {
                             out.status = control_status::OK;

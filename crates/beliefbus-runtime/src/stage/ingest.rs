@@ -31,7 +31,6 @@ use crate::ipc::{
     run_loop, Bus, Hop, Observation, Publisher, SensorSample, StageKind, StageStats, Subscriber,
     Wake, SENSOR_MAX_DIM,
 };
-use crate::model::SdeModel;
 use crate::rt::Clock;
 use crate::MAX_OBS;
 use std::sync::atomic::AtomicBool;
@@ -136,7 +135,7 @@ pub struct Validator {
 impl Validator {
     /// A validator for `cfg`'s channels and model.
     pub fn new(cfg: &PipelineConfig) -> Result<Self, StageError> {
-        let dims = cfg.model()?.dims();
+        let dims = cfg.dims()?;
         let channels = cfg
             .channels(dims.obs)
             .into_iter()

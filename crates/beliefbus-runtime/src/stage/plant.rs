@@ -7,6 +7,10 @@
 //! y_k = g(x(t_k)) + v_k, publishes it on `sensor` (measurement time t_k),
 //! then publishes `truth` for evaluation.
 //!
+//! A discrete-time plant (`Dynamics::Discrete`) does not move between
+//! samples: it takes one step per sample ([`crate::scenario::Plant::step`])
+//! with the control in force at t_k.
+//!
 //! Controls act as a zero-order hold from their publish time: controls that
 //! arrived during the interval split it into segments, each integrated with
 //! the control in force. (The plant reads them at its tick, so it never needs
@@ -20,7 +24,6 @@ use crate::ipc::{
     Bus, Control, ControlReject, Publisher, PublisherGate, SensorSample, StageKind, StageStats,
     Subscriber, Truth,
 };
-use crate::model::SdeModel;
 use crate::rng;
 use crate::rt::Clock;
 use crate::{MAX_CONTROL, MAX_OBS};
@@ -145,21 +148,26 @@ pub fn run_resumed(
     let warmup_ns = (cfg.run.warmup_s * 1e9) as u64;
     let mut m = Metrics::new(rt.budget_ns(), &[], warmup_ns);
     let system = cfg.system();
-    let dims = cfg.model()?.dims();
+    let dims = cfg.dims()?;
     let pos_axes = system.position_axes();
     let truth0 = resume
         .truth
         .as_ref()
         .filter(|t| t.x.len() == dims.state && t.x.iter().all(|v| v.is_finite()));
     let seq0 = truth0.map(|t| t.seq + 1).unwrap_or(0);
-    let mut sim = system.plant(
-        truth0.map(|t| &t.x[..]).unwrap_or(&cfg.plant.initial_state),
-        match resume.restarts {
-            0 => cfg.run.seed,
-            n => cfg.run.seed ^ rng::splitmix64(n as u64),
-        },
-        cfg.plant.integration_dt,
-    );
+    let mut sim = system
+        .plant(
+            truth0.map(|t| &t.x[..]).unwrap_or(&cfg.plant.initial_state),
+            match resume.restarts {
+                0 => cfg.run.seed,
+                n => cfg.run.seed ^ rng::splitmix64(n as u64),
+            },
+            cfg.plant.integration_dt,
+        )
+        .map_err(|reason| StageError::Build {
+            what: "plant",
+            reason,
+        })?;
     let limits = cfg.control_limits()?;
     let mut gate = PublisherGate::from_env();
     let mut log = RejectLog::new(Reason::ALL.len(), REJECT_LOG_PERIOD_NS);
@@ -255,6 +263,9 @@ pub fn run_resumed(
         if t_k > t {
             sim.advance((t_k - t) as f64 * 1e-9);
         }
+        // A discrete-time plant steps once per sample, with the control in
+        // force now.
+        sim.step();
         t_prev = t_k;
         // Controls are checked, so this takes a model that blows up under
         // admissible inputs (or a bug): the truth is gone, and a restart

@@ -92,7 +92,7 @@ pub struct RefinePorts {
 impl RefinePorts {
     /// Open them on `bus`.
     pub fn open(bus: &Bus, id: StageIdentity, cfg: &PipelineConfig) -> Result<Self, StageError> {
-        let dim = cfg.model()?.dims().state;
+        let dim = cfg.dims()?.state;
         Ok(Self {
             belief: bus.subscriber()?,
             control: bus.subscriber_with(1, false)?,

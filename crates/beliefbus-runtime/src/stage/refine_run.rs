@@ -43,7 +43,13 @@ pub fn run_with(
     ports.stats.publish(&m, clock.now_ns(), false)?;
     // A lineage per chain: a restarted refine continues its checkpointed
     // chain (same lineage and ids), else starts a new id space.
-    let mut refiner = resume::start(cfg, clock, restart)?;
+    let active = cfg.filter.backend == crate::config::FilterBackend::Chain;
+    // Inactive, it builds no chain (a discrete-time scenario has no SDE
+    // model to build one from).
+    let mut refiner = match active {
+        true => Some(resume::start(cfg, clock, restart)?),
+        false => None,
+    };
     let mut ckpt = resume::Checkpointer::new(restart, ports.chain.max_len());
     let tick = Duration::from_secs_f64(cfg.refine.period_ms * 1e-3);
     let work = Duration::from_secs_f64(cfg.refine.work_ms * 1e-3);
@@ -53,10 +59,9 @@ pub fn run_with(
     // backend refine only follows the beliefs and reports, instead of
     // spending a core's worth of rounds (and cache and memory bandwidth the
     // real-time stages share) on a chain nobody reads.
-    let active = cfg.filter.backend == crate::config::FilterBackend::Chain;
     let mut next_work = if active { 0u64 } else { u64::MAX };
     let mut next_publish = 0u64;
-    let moving = refiner.moving_frame();
+    let moving = refiner.as_ref().is_some_and(|r| r.moving_frame());
     // A version written and checkpointed but not yet sent (words, version,
     // states, δ), its words, and what writing them took.
     let mut staged: Option<(usize, u64, usize, f64)> = None;
@@ -74,13 +79,21 @@ pub fn run_with(
                     m.count_drop(DropReason::Superseded, skipped);
                     m.count_drop(DropReason::Lost, seq.observe(b.header.seq));
                     m.processed += 1;
-                    refiner.set_belief_at(&b.gaussian(), b.header.t_valid_ns as f64 * 1e-9);
+                    if let Some(r) = refiner.as_mut() {
+                        r.set_belief_at(&b.gaussian(), b.header.t_valid_ns as f64 * 1e-9);
+                    }
                 }
                 if let (Some(c), _) = control.latest()? {
                     let n = (c.dim as usize).min(MAX_CONTROL);
-                    refiner.set_control(&c.u[..n]);
+                    if let Some(r) = refiner.as_mut() {
+                        r.set_control(&c.u[..n]);
+                    }
                 }
             }
+            let Some(refiner) = refiner.as_mut() else {
+                stats.tick(&m, clock.now_ns())?;
+                return Ok(());
+            };
             let now = clock.now_ns();
             // Moving frame: a version is started when one is due, from the
             // latest belief, continued every round until it is complete,

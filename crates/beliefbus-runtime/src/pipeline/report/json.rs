@@ -45,6 +45,11 @@ pub struct RunReport {
     pub chain: ChainReport,
     pub streams: StreamsReport,
     pub shared_memory: SharedMemoryReport,
+    /// The scenario's own figures, keyed by the scenario's name
+    /// (`System::run_metrics`; e.g. `scenario_metrics.arx`); absent when
+    /// it has none.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub scenario_metrics: BTreeMap<String, Value>,
     /// The supervisor's figures (present when the launcher ran the stages).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub supervisor: Option<SupervisorReport>,
@@ -347,6 +352,11 @@ impl ReportInput {
                 files_removed: self.files_removed,
                 files_left: self.files_left,
             },
+            scenario_metrics: a
+                .scenario
+                .iter()
+                .map(|v| (self.scenario.clone(), v.clone()))
+                .collect(),
             supervisor: None,
             timeline: None,
         }

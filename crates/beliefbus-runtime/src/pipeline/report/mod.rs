@@ -23,6 +23,7 @@
 //!              fallback_cost_p50_us, fallback_cost_p99_us, stale_max_ms}   (filter backend `chain`)
 //!   streams:  {observations: {published, counted, unaccounted}},
 //!   shared_memory: {files_removed, files_left},
+//!   scenario_metrics: {<scenario>: {...}}   (scenarios with their own figures)
 //!   supervisor: {...}, timeline: {...} }    (added by the launcher)
 //! ```
 //! The JSON is written from the serde structs of [`json`] ([`RunReport`]);
@@ -34,6 +35,11 @@
 //! plant (built-in, or `beliefbus plant`): `null` with other external
 //! publishers, whose controls the pipeline cannot see applied
 //! (`stages.control.processed` counts the controls published).
+//!
+//! `scenario_metrics.<scenario>` is what the scenario's
+//! `System::run_metrics` reports (its module documents the keys); the
+//! section is absent for scenarios without one, so the layout stays
+//! version 1.
 //!
 //! `control.cost` is the closed-loop running cost per second after the
 //! warm-up, (1/T)∫[q(x̂) + w‖u‖²]dt with the tracking cost q of

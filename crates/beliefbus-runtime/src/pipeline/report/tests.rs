@@ -181,6 +181,7 @@ fn a_written_report_parses_back_with_its_schema_version_and_every_field() {
         rmse_position_raw: Some(1.5),
         beliefs: 90,
         samples: 100,
+        scenario: Some(json!({"tracking_mse": 1.5})),
     };
     let report = inp.report();
     // Written as `beliefbus run --report` writes it, then read back.
@@ -207,6 +208,13 @@ fn a_written_report_parses_back_with_its_schema_version_and_every_field() {
     // A non-finite figure is written as null.
     assert_eq!(parsed.accuracy.rmse_state, None);
     assert_eq!(parsed.shared_memory.files_removed, 3);
+    // The scenario's own section, keyed by its name; a report without
+    // one (an older writer, or a scenario without figures) still parses.
+    assert_eq!(parsed.scenario_metrics["ship"]["tracking_mse"], 1.5);
+    let mut older = v.clone();
+    older.as_object_mut().unwrap().remove("scenario_metrics");
+    let o: RunReport = serde_json::from_value(older).unwrap();
+    assert!(o.scenario_metrics.is_empty());
     // Nothing lost or added on the way: the whole report compares equal,
     // and its JSON has exactly the struct's keys.
     let mut expected = report;

@@ -168,24 +168,40 @@ pub fn make_filter_from(
     prior: &Gaussian,
     t0: f64,
 ) -> Result<Box<dyn BayesFilter>, StageError> {
-    let model = cfg.model()?;
     let prior = *prior;
     let build = |e: &dyn std::fmt::Display| StageError::Build {
         what: "filter",
         reason: e.to_string(),
     };
-    Ok(match cfg.filter.backend {
+    // Built-in backends need the SDE model (validation refused them on a
+    // discrete-time scenario).
+    let model = cfg.model();
+    Ok(match &cfg.filter.backend {
+        FilterBackend::Scenario(name) => {
+            // The scenario's own backend, on its own stream id ("FILT").
+            let ctx = crate::scenario::FilterContext {
+                seed: crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(0x4649_4C54)),
+                sample_dt: cfg.sample_dt(),
+                start: prior,
+                resumed: prior != cfg.prior(),
+                t0,
+            };
+            match cfg.system().filter_backend(name, &ctx) {
+                Some(r) => r.map_err(|e| build(&e))?,
+                None => return Err(build(&format!("the scenario offers no filter {name:?}"))),
+            }
+        }
         FilterBackend::Pf => {
             let mut pf = cfg.filter.pf.clone();
             pf.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(pf.seed));
-            Box::new(Pf::new(model, &pf, &prior, t0).map_err(|e| build(&e))?)
+            Box::new(Pf::new(model?, &pf, &prior, t0).map_err(|e| build(&e))?)
         }
         // The chain backend's fallback until its first snapshot.
         FilterBackend::Ekf | FilterBackend::Chain => {
-            Box::new(Ekf::new(model, &cfg.filter.ekf, &prior, t0).map_err(|e| build(&e))?)
+            Box::new(Ekf::new(model?, &cfg.filter.ekf, &prior, t0).map_err(|e| build(&e))?)
         }
         FilterBackend::Ukf => {
-            Box::new(Ukf::new(model, &cfg.filter.ukf, &prior, t0).map_err(|e| build(&e))?)
+            Box::new(Ukf::new(model?, &cfg.filter.ukf, &prior, t0).map_err(|e| build(&e))?)
         }
     })
 }
@@ -234,7 +250,7 @@ pub fn run_with(
     let dims = filter.dims();
     let model_std = {
         let mut s = [0.0; crate::MAX_OBS];
-        cfg.model()?.obs_std(&mut s[..dims.obs]);
+        cfg.dynamics()?.obs_std(&mut s[..dims.obs]);
         s
     };
     let mut u = [0.0; MAX_CONTROL];
