@@ -6,8 +6,7 @@
 use super::{
     anytime, arm, chain_closed_loop, chain_defaults, changepoint, convergence, decoding,
     double_slit, himmelblau, inventory, localization, param_estimation, ship, ship_control,
-    ship_states,
-    smoothing, vanderpol, Experiment,
+    ship_states, smoothing, vanderpol, Experiment,
 };
 use beliefbus_core::experiment_params::{p, ParamDoc};
 
