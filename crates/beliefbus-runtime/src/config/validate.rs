@@ -353,9 +353,11 @@ impl PipelineConfig {
             ));
         }
         // A refine round lasts work_ms and counts against the stage's
-        // budget: a longer round would be a miss by design.
+        // budget: a longer round would be a miss by design. Refine only
+        // runs rounds for the chain filter; otherwise it idles.
         let refine_budget_ms = self.stages.get(StageKind::Refine).budget_us * 1e-3;
-        if refine_budget_ms > 0.0 && self.refine.work_ms >= refine_budget_ms {
+        let rounds = self.filter.backend == FilterBackend::Chain;
+        if rounds && refine_budget_ms > 0.0 && self.refine.work_ms >= refine_budget_ms {
             return Err(ConfigError::new(
                 "refine.work_ms",
                 "must be below stages.refine.budget_us (a round counts against that budget)",
@@ -399,61 +401,6 @@ impl PipelineConfig {
                 .map_err(|(k, p)| ConfigError::new(format!("{key}.restart.{k}"), p))?;
         }
         self.validate_limits()
-    }
-
-    /// The SDE model a built-in backend (`name` at `key`) needs; refused on
-    /// a discrete-time scenario, naming the backends it offers.
-    fn sde_for(
-        &self,
-        key: &str,
-        name: &str,
-        dynamics: &crate::scenario::Dynamics,
-    ) -> Result<DynModel, ConfigError> {
-        dynamics.sde().ok_or_else(|| {
-            let sys = self.system();
-            let offers = if key == "filter.backend" {
-                crate::scenario::registry::supported_filters(sys)
-            } else {
-                crate::scenario::registry::supported_controllers(sys)
-            };
-            ConfigError::new(
-                key,
-                format!(
-                    "scenario {} is discrete-time and the built-in backend \"{name}\" needs an \
-                     SDE model; scenario {} offers: {}",
-                    self.run.scenario,
-                    self.run.scenario,
-                    offers.join(", ")
-                ),
-            )
-        })
-    }
-
-    /// A scenario's own filter: offered by the scenario, and buildable.
-    fn validate_scenario_filter(&self, name: &str) -> Result<(), ConfigError> {
-        let sys = self.system();
-        let ctx = crate::scenario::FilterContext {
-            seed: self.run.seed,
-            sample_dt: self.sample_dt(),
-            start: self.prior(),
-            resumed: false,
-            t0: 0.0,
-        };
-        match sys.filter_backend(name, &ctx) {
-            Some(Ok(_)) => Ok(()),
-            Some(Err(e)) => Err(ConfigError::new(
-                "filter.backend",
-                format!("scenario {}, backend \"{name}\": {e}", self.run.scenario),
-            )),
-            None => Err(ConfigError::new(
-                "filter.backend",
-                format!(
-                    "unknown backend \"{name}\"; scenario {} offers: {}",
-                    self.run.scenario,
-                    crate::scenario::registry::supported_filters(sys).join(", ")
-                ),
-            )),
-        }
     }
 
     /// The built-in filters' checks against the SDE model.
@@ -599,30 +546,6 @@ impl PipelineConfig {
                     })
             }
             ControlBackend::None | ControlBackend::Scenario(_) => Ok(()),
-        }
-    }
-
-    /// A scenario's own controller: offered by the scenario, and buildable.
-    fn validate_scenario_controller(&self, name: &str) -> Result<(), ConfigError> {
-        let sys = self.system();
-        let ctx = crate::scenario::ControlContext {
-            seed: self.run.seed,
-            sample_dt: self.sample_dt(),
-        };
-        match sys.controller(name, &ctx) {
-            Some(Ok(_)) => Ok(()),
-            Some(Err(e)) => Err(ConfigError::new(
-                "control.backend",
-                format!("scenario {}, controller \"{name}\": {e}", self.run.scenario),
-            )),
-            None => Err(ConfigError::new(
-                "control.backend",
-                format!(
-                    "unknown backend \"{name}\"; scenario {} offers: {}",
-                    self.run.scenario,
-                    crate::scenario::registry::supported_controllers(sys).join(", ")
-                ),
-            )),
         }
     }
 }
