@@ -152,6 +152,9 @@ impl ReportInput {
                 }
             }
         }
+        if let Some(v) = self.accuracy.scenario.as_ref().and_then(|v| v.as_object()) {
+            out.push_str(&scenario_line(&self.scenario, v));
+        }
         if let Some((published, counted, unaccounted)) = self.observation_books() {
             out.push_str(&format!(
                 "observations: {published} published, {counted} counted by the filter, {unaccounted} unaccounted (in flight at the stop, or lost with a dead filter)\n"
@@ -159,4 +162,21 @@ impl ReportInput {
         }
         out
     }
+}
+
+/// The scenario's own figures on one line: numbers as they are, lists by
+/// their length (the JSON report has the entries).
+fn scenario_line(name: &str, v: &serde_json::Map<String, serde_json::Value>) -> String {
+    let parts: Vec<String> = v
+        .iter()
+        .map(|(k, x)| match x {
+            serde_json::Value::Number(n) => match n.as_f64() {
+                Some(f) if n.is_f64() => format!("{k} {f:.4}"),
+                _ => format!("{k} {n}"),
+            },
+            serde_json::Value::Array(a) => format!("{k} [{} entries]", a.len()),
+            other => format!("{k} {other}"),
+        })
+        .collect();
+    format!("{name}: {}\n", parts.join(", "))
 }

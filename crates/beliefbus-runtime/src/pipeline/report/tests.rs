@@ -333,3 +333,20 @@ fn a_report_without_the_filter_section_still_parses() {
     let parsed: RunReport = serde_json::from_value(v).unwrap();
     assert_eq!(parsed.filter, FilterReport::default());
 }
+
+#[test]
+fn the_scenarios_own_figures_are_printed_on_one_line() {
+    let mut inp = input();
+    inp.accuracy.scenario = None;
+    assert!(!inp.render().contains("\nship:"));
+    inp.accuracy.scenario = Some(serde_json::json!({
+        "tracking_mse": 1.5,
+        "detected": 3,
+        "detection_delays": [{"step": 10, "delay": 2}, {"step": 90, "delay": 4}],
+    }));
+    let t = inp.render();
+    assert!(
+        t.contains("ship: detected 3, detection_delays [2 entries], tracking_mse 1.5000\n"),
+        "{t}"
+    );
+}
