@@ -396,10 +396,10 @@ pub struct RefineConfig {
 }
 
 fn default_refine_period() -> f64 {
-    50.0
+    10.0
 }
 fn default_refine_work() -> f64 {
-    40.0
+    5.0
 }
 fn default_publish_period() -> f64 {
     200.0

@@ -301,9 +301,9 @@ mod tests {
                 "{k} missing from the reference"
             );
         }
-        // Defaults come from the code: the refine period's is 50 ms.
+        // Defaults come from the code: the refine period's is 10 ms.
         assert!(
-            r.contains("| `refine.period_ms` | number | `50.0` |"),
+            r.contains("| `refine.period_ms` | number | `10.0` |"),
             "{r}"
         );
     }
