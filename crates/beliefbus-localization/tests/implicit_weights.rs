@@ -8,7 +8,7 @@ use beliefbus_localization::geometry::Pose;
 use beliefbus_localization::laser::{predict, term_cost, LaserNoise, Observation};
 use beliefbus_localization::mcl::implicit::ImplicitMcl;
 use beliefbus_localization::mcl::newton::{minimise, NewtonSettings, Objective};
-use beliefbus_localization::mcl::Localizer;
+use beliefbus_localization::mcl::{LaserStep, Localizer};
 use beliefbus_localization::vehicle::{Control, MotionNoise, StepNoise, Ute};
 use nalgebra::{Matrix3, Vector3};
 
@@ -25,17 +25,17 @@ fn gaussian_f_gives_constant_weights() {
     for (j, x) in f.set.x.iter_mut().enumerate() {
         *x = Pose::new(j as f64, -0.5 * j as f64, 0.13 * j as f64);
     }
-    f.update(
-        &ute,
+    let laser = LaserNoise::default();
+    let scan = LaserStep {
+        ute: &ute,
         u,
-        &noise,
-        &[],
-        &[],
-        &LaserNoise::default(),
-        1,
-        &mut rng,
-    )
-    .unwrap();
+        noise: &noise,
+        obs: &[],
+        map: &[],
+        laser: &laser,
+        step: 1,
+    };
+    f.update(&scan, &mut rng).unwrap();
     let m = f.set.len() as f64;
     for &w in &f.set.w {
         assert!((w - 1.0 / m).abs() < 1e-12, "{w}");

@@ -23,12 +23,10 @@
 
 use super::newton::{minimise, NewtonSettings, Objective};
 use super::particles::ParticleSet;
-use super::Localizer;
+use super::{LaserStep, Localizer};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
-use crate::geometry::Point;
-use crate::laser::{term_cost, LaserNoise, Observation};
-use crate::vehicle::{Control, StepNoise, Ute};
+use crate::laser::term_cost;
 use beliefbus_core::rng::SimRng;
 
 /// Implicit MCL with M particles.
@@ -72,17 +70,16 @@ impl Localizer for ImplicitMcl {
         Some((self.newton_iters, self.fallbacks))
     }
 
-    fn update(
-        &mut self,
-        ute: &Ute,
-        u: Control,
-        noise: &StepNoise,
-        obs: &[Observation],
-        map: &[Point],
-        laser: &LaserNoise,
-        step: usize,
-        rng: &mut SimRng,
-    ) -> Result<(), LocalizationError> {
+    fn update(&mut self, s: &LaserStep, rng: &mut SimRng) -> Result<(), LocalizationError> {
+        let LaserStep {
+            ute,
+            u,
+            noise,
+            obs,
+            map,
+            laser,
+            step,
+        } = *s;
         for (x, lw) in self.set.x.iter_mut().zip(self.set.logw.iter_mut()) {
             let obj = Objective {
                 f: ute.predict_mean(x, u),

@@ -29,6 +29,21 @@ use crate::vehicle::{Control, StepNoise, Ute};
 use beliefbus_core::rng::SimRng;
 use particles::ParticleSet;
 
+/// What a laser step n gives a localizer: the vehicle, the control u_n and
+/// its step noise, the scan's returns, the map they refer to and the
+/// laser's noise.
+#[derive(Clone, Copy, Debug)]
+pub struct LaserStep<'a> {
+    pub ute: &'a Ute,
+    pub u: Control,
+    pub noise: &'a StepNoise,
+    pub obs: &'a [Observation],
+    pub map: &'a [Point],
+    pub laser: &'a LaserNoise,
+    /// The step index n (for error messages).
+    pub step: usize,
+}
+
 /// A particle localizer on a known map.
 pub trait Localizer {
     /// The method's name in reports.
@@ -38,18 +53,7 @@ pub trait Localizer {
 
     /// A laser step n: move each particle from X_{n−1} with control u and
     /// weight it by the scan `obs`, then reweight (and maybe resample).
-    #[allow(clippy::too_many_arguments)]
-    fn update(
-        &mut self,
-        ute: &Ute,
-        u: Control,
-        noise: &StepNoise,
-        obs: &[Observation],
-        map: &[Point],
-        laser: &LaserNoise,
-        step: usize,
-        rng: &mut SimRng,
-    ) -> Result<(), LocalizationError>;
+    fn update(&mut self, s: &LaserStep, rng: &mut SimRng) -> Result<(), LocalizationError>;
 
     /// Newton steps and motion-model fallbacks so far (implicit MCL only).
     fn newton_stats(&self) -> Option<(usize, usize)> {
@@ -87,13 +91,15 @@ pub fn run(
         let noise = StepNoise::new(&cp.ute, u, &cp.motion)?;
         match scans.next_if(|s| s.step == n) {
             Some(s) => filter.update(
-                &cp.ute,
-                u,
-                &noise,
-                cp.scan_obs(s),
-                &cp.landmarks,
-                &cp.laser,
-                n,
+                &LaserStep {
+                    ute: &cp.ute,
+                    u,
+                    noise: &noise,
+                    obs: cp.scan_obs(s),
+                    map: &cp.landmarks,
+                    laser: &cp.laser,
+                    step: n,
+                },
                 rng,
             )?,
             None => filter.predict(&cp.ute, u, &noise, rng),
