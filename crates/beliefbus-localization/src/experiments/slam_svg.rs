@@ -10,6 +10,8 @@ pub struct Svg {
     body: String,
     w: f64,
     h: f64,
+    /// Clip region of the last panel drawn by [`Svg::axes`].
+    clip: usize,
 }
 
 /// A rectangle of the drawing mapped to data coordinates.
@@ -48,6 +50,7 @@ impl Svg {
             body: String::new(),
             w,
             h,
+            clip: 0,
         }
     }
 
@@ -62,6 +65,13 @@ impl Svg {
 
     /// Axes with a frame, ticks and labels.
     pub fn axes(&mut self, p: &Panel, title: &str, xlabel: &str, ylabel: &str) {
+        // Series drawn after this are clipped to the panel.
+        self.clip += 1;
+        let _ = writeln!(
+            self.body,
+            r#"<clipPath id="c{}"><rect x="{:.1}" y="{:.1}" width="{:.1}" height="{:.1}"/></clipPath>"#,
+            self.clip, p.x0, p.y0, p.w, p.h
+        );
         let _ = writeln!(
             self.body,
             r#"<rect x="{:.1}" y="{:.1}" width="{:.1}" height="{:.1}" fill="none" stroke="black"/>"#,
@@ -96,7 +106,8 @@ impl Svg {
         }
         let _ = writeln!(
             self.body,
-            r#"<polyline points="{d}" fill="none" stroke="{color}" stroke-width="{width}"/>"#
+            r#"<polyline points="{d}" fill="none" stroke="{color}" stroke-width="{width}" clip-path="url(#c{})"/>"#,
+            self.clip
         );
     }
 
@@ -105,7 +116,8 @@ impl Svg {
         let (a, b) = p.at(x, y);
         let _ = writeln!(
             self.body,
-            r#"<circle cx="{a:.1}" cy="{b:.1}" r="{r}" fill="{color}"/>"#
+            r#"<circle cx="{a:.1}" cy="{b:.1}" r="{r}" fill="{color}" clip-path="url(#c{})"/>"#,
+            self.clip
         );
         if !label.is_empty() {
             self.text(a + 5.0, b - 5.0, 10.0, label);
@@ -151,4 +163,31 @@ pub fn range(v: impl Iterator<Item = f64>, margin: f64) -> (f64, f64) {
     }
     let m = (hi - lo) * margin;
     (lo - m, hi + m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn panels_map_corners_and_clip_their_series() {
+        let p = Panel {
+            x0: 10.0,
+            y0: 20.0,
+            w: 100.0,
+            h: 50.0,
+            xr: (0.0, 2.0),
+            yr: (1.0, 100.0),
+            ylog: true,
+        };
+        assert_eq!(p.at(0.0, 1.0), (10.0, 70.0));
+        let (x, y) = p.at(2.0, 10.0);
+        assert!((x - 110.0).abs() < 1e-12 && (y - 45.0).abs() < 1e-9);
+        let mut s = Svg::new(200.0, 100.0);
+        s.axes(&p, "t", "x", "y");
+        s.line(&p, &[(0.0, 1.0), (2.0, 100.0)], "red", 1.0);
+        let doc = s.finish();
+        assert!(doc.starts_with("<svg") && doc.contains(r#"clip-path="url(#c1)""#));
+        assert!(doc.contains("10.0,70.0 110.0,20.0"));
+    }
 }
