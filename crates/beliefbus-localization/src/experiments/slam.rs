@@ -29,6 +29,7 @@ use crate::slam::driver::{pick_one_per_scan, run_carpark, trajectory_error_pct};
 use crate::slam::ekf::EkfSlam;
 use crate::slam::fastslam::{FastSlam, Version};
 use crate::slam::implicit::ImplicitSlam;
+use crate::slam::implicit_rb::ImplicitRbSlam;
 use crate::slam::{SlamFilter, SlamModel};
 use crate::vehicle::MotionNoise;
 use crate::victoria;
@@ -47,6 +48,11 @@ pub const PARAMS: &[ParamDoc] = &[
         "implicit_samples",
         "10,20,50,100,200,400,500",
         "sample sizes of implicit SLAM ('none': skip)",
+    ),
+    p(
+        "implicit_rb_samples",
+        "",
+        "sample sizes of the Rao-Blackwellised implicit variant (Gaussian landmarks, not the paper's); none by default",
     ),
     p(
         "fastslam1_samples",
@@ -265,6 +271,9 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
     for m in sizes("fastslam2_samples", &[20, 50, 100, 200, 400, 500])? {
         methods.push(("fastslam2", m));
     }
+    for m in sizes("implicit_rb_samples", &[])? {
+        methods.push(("implicit-rb", m));
+    }
     methods.push(("ekf", 1));
     let plot = ps.raw("plot").map(str::to_string);
     Ok(Setup {
@@ -292,6 +301,7 @@ pub fn make_filter(
 ) -> Result<Box<dyn SlamFilter>, LocalizationError> {
     Ok(match name {
         "implicit" => Box::new(ImplicitSlam::new(model, m, ess, newton)?),
+        "implicit-rb" => Box::new(ImplicitRbSlam::new(model, m, ess, newton)?),
         "fastslam1" => Box::new(FastSlam::new(model, Version::One, m, ess)?),
         "fastslam2" => Box::new(FastSlam::new(model, Version::Two, m, ess)?),
         _ => Box::new(EkfSlam::new(model)?),
@@ -511,7 +521,7 @@ pub fn acceptance(methods: &[(&str, usize)], per: &[Vec<RunMetrics>]) -> Vec<Str
             .min_by(|&a, &b| mean(a).total_cmp(&mean(b)))
     };
     let mut line = String::from("best error per method:");
-    for name in ["implicit", "fastslam1", "fastslam2"] {
+    for name in ["implicit", "implicit-rb", "fastslam1", "fastslam2"] {
         if let Some(b) = best(name) {
             line += &format!(" {name} {:.3}% (M = {})", mean(b), methods[b].1);
         }
@@ -532,7 +542,7 @@ pub fn write_plot(path: &str, rep: &Report) -> Result<(), LocalizationError> {
         18.0,
         "SLAM: time per update vs trajectory error (paper 003 Table 6 / Fig. 7 right)",
     );
-    let methods = ["implicit", "fastslam1", "fastslam2", "ekf"];
+    let methods = ["implicit", "fastslam1", "fastslam2", "ekf", "implicit-rb"];
     for (k, (title, rows)) in [
         (
             "ours: synthetic car park on Victoria Park odometry",

@@ -22,6 +22,7 @@ pub mod driver;
 pub mod ekf;
 pub mod fastslam;
 pub mod implicit;
+pub mod implicit_rb;
 pub mod joint;
 pub mod map;
 pub mod particles;

@@ -304,3 +304,13 @@ fn ekf_slam_beats_dead_reckoning() {
         "ekf {me:.3}% vs dead reckoning {md:.3}%"
     );
 }
+
+#[test]
+fn implicit_rb_slam_error_falls_with_samples() {
+    assert_falls("implicit-rb", &|m| {
+        Box::new(
+            super::implicit_rb::ImplicitRbSlam::new(model(), m, 0.5, NewtonSettings::default())
+                .unwrap(),
+        )
+    });
+}
