@@ -497,6 +497,16 @@ pub fn acceptance(methods: &[(&str, usize)], per: &[Vec<RunMetrics>]) -> Vec<Str
         (("implicit", 100), ("ekf", 1), "paper: 2.98% vs 3.89%"),
         (("fastslam2", 500), ("ekf", 1), "paper: 4.71% vs 3.89%"),
         (
+            ("implicit-rb", 100),
+            ("fastslam2", 400),
+            "variant, not in the paper",
+        ),
+        (
+            ("implicit-rb", 100),
+            ("ekf", 1),
+            "variant, not in the paper",
+        ),
+        (
             ("fastslam1", 1000),
             ("fastslam2", 500),
             "paper: 8.78% vs 4.71%",

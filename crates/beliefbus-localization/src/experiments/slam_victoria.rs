@@ -341,15 +341,16 @@ fn acceptance(rows: &[Row]) -> Vec<String> {
             .and_then(|r| r.get("rms_m"))
     };
     let mut out = vec![];
-    if let (Some(i), Some(f), Some(e)) =
-        (get("implicit", 100), get("fastslam2", 100), get("ekf", 1))
-    {
-        out.push(format!(
-            "implicit at 100: RMS {i:.2} m; FastSLAM 2.0 at 100: {f:.2} m; EKF-SLAM: {e:.2} m (1.5x = {:.2} m): implicit ≤ FastSLAM 2.0 {}, ≤ 1.5x EKF {}",
-            1.5 * e,
-            if i <= f { "yes" } else { "NO" },
-            if i <= 1.5 * e { "yes" } else { "NO" }
-        ));
+    for name in ["implicit", "implicit-rb"] {
+        if let (Some(i), Some(f), Some(e)) = (get(name, 100), get("fastslam2", 100), get("ekf", 1))
+        {
+            out.push(format!(
+                "{name} at 100: RMS {i:.2} m; FastSLAM 2.0 at 100: {f:.2} m; EKF-SLAM: {e:.2} m (1.5x = {:.2} m): {name} ≤ FastSLAM 2.0 {}, ≤ 1.5x EKF {}",
+                1.5 * e,
+                if i <= f { "yes" } else { "NO" },
+                if i <= 1.5 * e { "yes" } else { "NO" }
+            ));
+        }
     }
     out
 }
