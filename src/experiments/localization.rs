@@ -28,17 +28,44 @@ pub fn mcl(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
     Ok(rep)
 }
 
+/// An experiment of the crate run as is (it writes its own plot).
+fn run_named(name: &str, args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
+    let exp = loc::find(name)
+        .ok_or_else(|| anyhow::anyhow!("experiment {name} missing from beliefbus-localization"))?;
+    Ok((exp.run)(args.runs, args.seed, &args.params)?)
+}
+
+/// `slam` (Table 6).
+pub fn slam(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
+    run_named("slam", args)
+}
+
+/// `slam-victoria-park` (the real run).
+pub fn slam_victoria_park(args: &ExperimentArgs) -> anyhow::Result<ExperimentReport> {
+    run_named("slam-victoria-park", args)
+}
+
+/// A registry entry point.
+type Entry = fn(&ExperimentArgs) -> anyhow::Result<ExperimentReport>;
+
 /// The registry entries, with the crate's descriptions.
 pub fn experiments() -> Vec<super::Experiment> {
-    loc::find("mcl")
-        .map(|e| super::Experiment {
-            name: e.name,
-            about: e.about,
-            reproduces: e.reproduces,
-            params: e.params,
-            run: mcl,
-        })
+    let entries: [(&str, Entry); 3] = [
+        ("mcl", mcl),
+        ("slam", slam),
+        ("slam-victoria-park", slam_victoria_park),
+    ];
+    entries
         .into_iter()
+        .filter_map(|(name, run)| {
+            loc::find(name).map(|e| super::Experiment {
+                name: e.name,
+                about: e.about,
+                reproduces: e.reproduces,
+                params: e.params,
+                run,
+            })
+        })
         .collect()
 }
 

@@ -9,6 +9,7 @@
 //! - [`victoria`]: the reader of the Victoria Park odometry and scan times;
 //! - [`carpark`]: the synthetic car park (true path, landmarks, scans, gaps);
 //! - [`mcl`]: implicit MCL and standard MCL on the same models;
+//! - [`slam`]: implicit SLAM, FastSLAM 1.0/2.0 and EKF-SLAM with one data association;
 //! - [`experiments`]: the paper's Table 5 as a library function.
 //!
 //! Pure computation apart from reading the data files: no global state;
@@ -20,6 +21,7 @@ pub mod experiments;
 pub mod geometry;
 pub mod laser;
 pub mod mcl;
+pub mod slam;
 pub mod vehicle;
 pub mod victoria;
 

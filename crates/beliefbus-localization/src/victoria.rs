@@ -41,7 +41,7 @@ fn parse_err(file: &'static str, line: usize, msg: impl Into<String>) -> Localiz
 
 /// Parse CSV rows of `ncol` finite numbers after a header that must equal
 /// `header`; `f` receives each row.
-fn parse_rows(
+pub(crate) fn parse_rows(
     file: &'static str,
     text: &str,
     header: &str,
@@ -156,7 +156,7 @@ pub fn resolve_dir(explicit: Option<&str>) -> PathBuf {
         .join(DEFAULT_DIR)
 }
 
-fn read(dir: &Path, name: &str) -> Result<String, LocalizationError> {
+pub(crate) fn read(dir: &Path, name: &str) -> Result<String, LocalizationError> {
     let p = dir.join(name);
     if !p.exists() {
         return Err(LocalizationError::DataMissing {

@@ -4,6 +4,10 @@
 
 pub mod mcl;
 pub mod params;
+pub mod slam;
+pub mod slam_svg;
+pub mod slam_victoria;
+pub mod slam_vp_data;
 
 use crate::error::LocalizationError;
 use beliefbus_core::experiment_params::ParamDoc;
@@ -31,6 +35,20 @@ pub fn all() -> Vec<Experiment> {
         reproduces: "paper 003 Table 5 (Fig. 6 right)",
         params: mcl::PARAMS,
         run: mcl::run,
+    },
+    Experiment {
+        name: "slam",
+        about: "implicit SLAM vs FastSLAM 1.0, FastSLAM 2.0 and EKF-SLAM on synthetic car parks driven by the Victoria Park odometry: trajectory error and time per update vs samples",
+        reproduces: "paper 003 Table 6 (Fig. 7 right)",
+        params: slam::PARAMS,
+        run: slam::run,
+    },
+    Experiment {
+        name: "slam-victoria-park",
+        about: "implicit SLAM, FastSLAM 2.0 and EKF-SLAM on the whole real Victoria Park run with its tree features: position error against GPS (RMS, 95th percentile), trees mapped, time per update",
+        reproduces: "the Victoria Park benchmark (Guivant & Nebot); no paper figure",
+        params: slam_victoria::PARAMS,
+        run: slam_victoria::run,
     }]
 }
 

@@ -1,0 +1,630 @@
+//! Paper 003 Table 6 (Fig. 7 right): implicit SLAM, FastSLAM 1.0 and 2.0
+//! against the number of samples, with EKF-SLAM as reference, on synthetic
+//! car parks driven by the Victoria Park odometry.
+//!
+//! Each run draws one data set ([`crate::carpark`], as the `mcl`
+//! experiment) and, at each scan, one of the visible landmarks at random
+//! (the paper: "if more than one feature is detected, one is selected at
+//! random"), handed to the filters without its identity; every method and
+//! sample size runs on it with the same filter seed. The laser reports at
+//! every `scan_every`-th odometry step (default 1: one feature per step of
+//! δ = 0.025 s, the notes' §1.7 reading of "one feature is observed per
+//! step"; 0: at the recorded Victoria Park scan times, ≈ 4.7 Hz).
+//!
+//! Error of a run: ‖p̂ − p‖ / ‖p‖ in % over the laser positions at every
+//! odometry step (as Table 5; the paper does not say whether map error is
+//! included, ours is the path only); time per update: the filter's time
+//! over the run divided by its odometry steps.
+
+use super::params::{mean_se, Params};
+use super::slam_svg::{range, Panel, Svg, COLORS};
+use super::{Report, Row};
+use crate::carpark::{CarPark, CarParkConfig};
+use crate::error::LocalizationError;
+use crate::geometry::Pose;
+use crate::laser::LaserNoise;
+use crate::mcl::newton::NewtonSettings;
+use crate::slam::assoc::AssocConfig;
+use crate::slam::driver::{pick_one_per_scan, run_carpark, trajectory_error_pct};
+use crate::slam::ekf::EkfSlam;
+use crate::slam::fastslam::{FastSlam, Version};
+use crate::slam::implicit::ImplicitSlam;
+use crate::slam::implicit_rb::ImplicitRbSlam;
+use crate::slam::{SlamFilter, SlamModel};
+use crate::vehicle::MotionNoise;
+use crate::victoria;
+use beliefbus_core::experiment_params::{p, ParamDoc};
+use beliefbus_core::rng::stream;
+use std::time::Instant;
+
+/// The documented parameters.
+pub const PARAMS: &[ParamDoc] = &[
+    p(
+        "data_dir",
+        "= $BELIEFBUS_VICTORIA_PARK or ../shared/data/victoria-park",
+        "Victoria Park folder (odometry.csv, laser_times.csv), read in place",
+    ),
+    p(
+        "implicit_samples",
+        "10,20,50,100,200,400,500",
+        "sample sizes of implicit SLAM ('none': skip)",
+    ),
+    p(
+        "implicit_rb_samples",
+        "",
+        "sample sizes of the Rao-Blackwellised implicit variant (Gaussian landmarks, not the paper's); none by default",
+    ),
+    p(
+        "fastslam1_samples",
+        "20,50,100,200,400,500,800,1000",
+        "sample sizes of FastSLAM 1.0 ('none': skip)",
+    ),
+    p(
+        "fastslam2_samples",
+        "20,50,100,200,400,500",
+        "sample sizes of FastSLAM 2.0 ('none': skip)",
+    ),
+    p(
+        "start_time_s",
+        "40",
+        "start of the odometry stretch (s, data-set clock)",
+    ),
+    p("duration_s", "120", "length of the stretch (s)"),
+    p(
+        "scan_every",
+        "1",
+        "synthetic laser at every k-th odometry step; 0: at the recorded scan times",
+    ),
+    p(
+        "ess_threshold",
+        "0.5",
+        "resample when ESS < this fraction of the samples",
+    ),
+    p(
+        "motion_scale",
+        "1",
+        "multiplies every P and Q intensity of Table 7 (filters and truth)",
+    ),
+    p(
+        "truth_noise",
+        "0.1",
+        "scale of the true path's noise standard deviations vs the filters' model",
+    ),
+    p(
+        "laser_var_range",
+        "0.05",
+        "sigma_1: variance of the range (m^2)",
+    ),
+    p(
+        "laser_var_bearing",
+        "0.0008726646259971648",
+        "sigma_2: variance of the bearing (rad^2)",
+    ),
+    p(
+        "max_range",
+        "15",
+        "radius of the laser's forward half circle (m)",
+    ),
+    p(
+        "landmark_spacing",
+        "8",
+        "arc length between landmarks along the path (m)",
+    ),
+    p(
+        "gap_every_s",
+        "30",
+        "one laser gap per window of this length (s); 0: none",
+    ),
+    p("gap_len_s", "2", "length of each laser gap (s)"),
+    p(
+        "gate",
+        "9.21",
+        "association gate on the Mahalanobis d^2 (chi^2_2 99 %)",
+    ),
+    p(
+        "new_threshold",
+        "13.8",
+        "start a landmark when every d^2 exceeds this (chi^2_2 99.9 %)",
+    ),
+    p(
+        "assoc_radius",
+        "5",
+        "only landmarks this close to the return's point are scored (m)",
+    ),
+    p(
+        "newton_max_iter",
+        "20",
+        "Newton steps per particle and update, at most",
+    ),
+    p("newton_tol", "0.001", "Newton decrement tolerance"),
+    p(
+        "plot",
+        "(none)",
+        "write an SVG of time per update against error (ours and the paper's) here",
+    ),
+];
+
+/// Table 6 of the paper: samples, then (time ms, error %) of FastSLAM,
+/// FastSLAM 2.0 and implicit sampling.
+type Cell = Option<(f64, f64)>;
+pub const PAPER: &[(usize, Cell, Cell, Cell)] = &[
+    (10, None, None, Some((7.31, 8.31))),
+    (
+        20,
+        Some((5.55, 17.7)),
+        Some((8.36, 20.0)),
+        Some((14.4, 7.18)),
+    ),
+    (
+        50,
+        Some((13.6, 14.8)),
+        Some((20.5, 13.1)),
+        Some((35.4, 4.54)),
+    ),
+    (
+        100,
+        Some((26.9, 12.0)),
+        Some((40.7, 8.36)),
+        Some((70.3, 2.98)),
+    ),
+    (
+        200,
+        Some((52.7, 10.8)),
+        Some((82.1, 5.24)),
+        Some((140.9, 2.55)),
+    ),
+    (
+        400,
+        Some((105.2, 7.64)),
+        Some((164.0, 4.83)),
+        Some((286.0, 3.25)),
+    ),
+    (
+        500,
+        Some((133.2, 8.67)),
+        Some((346.7, 4.71)),
+        Some((355.9, 3.25)),
+    ),
+    (800, Some((213.2, 10.4)), None, None),
+    (1000, Some((280.1, 8.78)), None, None),
+];
+/// EKF-SLAM in the paper's text: 3.89 % at 0.43 ms.
+pub const PAPER_EKF: (f64, f64) = (0.43, 3.89);
+
+/// Everything a run needs.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    pub data_dir: std::path::PathBuf,
+    pub carpark: CarParkConfig,
+    pub model: SlamModel,
+    pub scan_every: usize,
+    pub ess_threshold: f64,
+    pub newton: NewtonSettings,
+    pub methods: Vec<(&'static str, usize)>,
+    pub plot: Option<String>,
+}
+
+/// Parse the parameters.
+pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
+    let ps = Params::new(kv, PARAMS)?;
+    let d = CarParkConfig::default();
+    let ld = LaserNoise::default();
+    let ad = AssocConfig::default();
+    let k: f64 = ps.get("motion_scale", 1.0)?;
+    LocalizationError::positive("motion_scale", k)?;
+    let md = MotionNoise::default();
+    let motion = MotionNoise {
+        p: [md.p[0] * k, md.p[1] * k],
+        q: [md.q[0] * k, md.q[1] * k, md.q[2] * k],
+    };
+    let laser = LaserNoise {
+        var_range: ps.get("laser_var_range", ld.var_range)?,
+        var_bearing: ps.get("laser_var_bearing", ld.var_bearing)?,
+    };
+    let carpark = CarParkConfig {
+        start_time: ps.get("start_time_s", d.start_time)?,
+        duration: ps.get("duration_s", d.duration)?,
+        motion,
+        laser,
+        truth_noise: ps.get("truth_noise", d.truth_noise)?,
+        max_range: ps.get("max_range", d.max_range)?,
+        landmark_spacing: ps.get("landmark_spacing", d.landmark_spacing)?,
+        gap_every: ps.get("gap_every_s", d.gap_every)?,
+        gap_len: ps.get("gap_len_s", d.gap_len)?,
+        ..d
+    };
+    let model = SlamModel {
+        ute: carpark.ute,
+        motion,
+        laser,
+        assoc: AssocConfig {
+            gate: ps.get("gate", ad.gate)?,
+            new_threshold: ps.get("new_threshold", ad.new_threshold)?,
+            radius: ps.get("assoc_radius", ad.radius)?,
+        },
+        max_range: carpark.max_range,
+    };
+    model.validate()?;
+    let sizes = |key: &str, def: &[usize]| -> Result<Vec<usize>, LocalizationError> {
+        let v: Vec<usize> = match ps.raw(key) {
+            Some("none") => Vec::new(),
+            _ => ps.list(key, def)?,
+        };
+        if v.contains(&0) {
+            return Err(LocalizationError::Param {
+                key: key.into(),
+                msg: "sample sizes must be ≥ 1".into(),
+            });
+        }
+        Ok(v)
+    };
+    let mut methods: Vec<(&'static str, usize)> = Vec::new();
+    for m in sizes("implicit_samples", &[10, 20, 50, 100, 200, 400, 500])? {
+        methods.push(("implicit", m));
+    }
+    for m in sizes(
+        "fastslam1_samples",
+        &[20, 50, 100, 200, 400, 500, 800, 1000],
+    )? {
+        methods.push(("fastslam1", m));
+    }
+    for m in sizes("fastslam2_samples", &[20, 50, 100, 200, 400, 500])? {
+        methods.push(("fastslam2", m));
+    }
+    for m in sizes("implicit_rb_samples", &[])? {
+        methods.push(("implicit-rb", m));
+    }
+    methods.push(("ekf", 1));
+    let plot = ps.raw("plot").map(str::to_string);
+    Ok(Setup {
+        data_dir: victoria::resolve_dir(ps.raw("data_dir")),
+        carpark,
+        model,
+        scan_every: ps.get("scan_every", 1usize)?,
+        ess_threshold: ps.get("ess_threshold", 0.5)?,
+        newton: NewtonSettings {
+            max_iter: ps.get("newton_max_iter", 20usize)?,
+            tol: ps.get("newton_tol", 1e-3)?,
+        },
+        methods,
+        plot,
+    })
+}
+
+/// A filter by name and sample size.
+pub fn make_filter(
+    name: &str,
+    m: usize,
+    model: SlamModel,
+    ess: f64,
+    newton: NewtonSettings,
+) -> Result<Box<dyn SlamFilter>, LocalizationError> {
+    Ok(match name {
+        "implicit" => Box::new(ImplicitSlam::new(model, m, ess, newton)?),
+        "implicit-rb" => Box::new(ImplicitRbSlam::new(model, m, ess, newton)?),
+        "fastslam1" => Box::new(FastSlam::new(model, Version::One, m, ess)?),
+        "fastslam2" => Box::new(FastSlam::new(model, Version::Two, m, ess)?),
+        _ => Box::new(EkfSlam::new(model)?),
+    })
+}
+
+/// Figures of one filter run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RunMetrics {
+    pub error_pct: f64,
+    pub rms_m: f64,
+    pub time_ms: f64,
+    pub time_s: f64,
+    pub ess_fraction: f64,
+    /// Landmarks in the estimate's map per landmark truly seen.
+    pub map_ratio: f64,
+}
+
+/// `slam`: Table 6 with `runs` data sets (default 50, the paper's).
+pub fn run(
+    runs: Option<usize>,
+    seed: u64,
+    kv: &[(String, String)],
+) -> Result<Report, LocalizationError> {
+    let s = setup(kv)?;
+    let runs = runs.unwrap_or(50);
+    if runs == 0 {
+        return Err(LocalizationError::Param {
+            key: "runs".into(),
+            msg: "must be ≥ 1".into(),
+        });
+    }
+    let mut rec = victoria::load(&s.data_dir)?;
+    if s.scan_every > 0 {
+        // Scans just after every k-th odometry sample, so each belongs to it.
+        rec.laser_times = rec
+            .odometry
+            .iter()
+            .step_by(s.scan_every)
+            .map(|o| o.time - 1e-6)
+            .collect();
+    }
+    let mut per: Vec<Vec<RunMetrics>> = vec![Vec::with_capacity(runs); s.methods.len()];
+    let (mut steps, mut picks_n, mut seen_n, mut length) = (0, 0, 0, 0.0);
+    for r in 0..runs as u64 {
+        let cp = CarPark::generate(&rec, &s.carpark, &mut stream(seed, r))?;
+        let picks = pick_one_per_scan(&cp, &mut stream(seed, 2_000_000 + r));
+        let mut seen: Vec<usize> = picks.iter().map(|p| p.landmark).collect();
+        seen.sort_unstable();
+        seen.dedup();
+        steps = cp.steps();
+        picks_n += picks.len();
+        seen_n += seen.len();
+        length += cp.path_length();
+        for (i, &(name, m)) in s.methods.iter().enumerate() {
+            let mut f = make_filter(name, m, s.model, s.ess_threshold, s.newton)?;
+            let mut est = vec![Pose::zeros(); cp.steps() + 1];
+            let mut rng = stream(seed, 1_000_000 + r);
+            let t0 = Instant::now();
+            run_carpark(f.as_mut(), &cp, &picks, &mut rng, |n, e| est[n] = *e)?;
+            let time_s = t0.elapsed().as_secs_f64();
+            let n = cp.steps() as f64;
+            let se: f64 = cp
+                .truth
+                .iter()
+                .zip(&est)
+                .skip(1)
+                .map(|(t, e)| (e[0] - t[0]).powi(2) + (e[1] - t[1]).powi(2))
+                .sum();
+            let st = f.stats();
+            per[i].push(RunMetrics {
+                error_pct: trajectory_error_pct(&cp.truth, &est),
+                rms_m: (se / n).sqrt(),
+                time_ms: 1e3 * time_s / n,
+                time_s,
+                ess_fraction: st.ess_fraction_sum / st.updates.max(1) as f64,
+                map_ratio: f.map().len() as f64 / seen.len().max(1) as f64,
+            });
+        }
+    }
+    let mut rep = Report::new("slam");
+    rep.lead_columns(&[
+        "samples",
+        "error_pct",
+        "error_pct_se",
+        "time_ms",
+        "time_ms_se",
+    ]);
+    rep.param("runs", runs);
+    rep.param("seed", seed);
+    rep.param("data_dir", s.data_dir.display().to_string());
+    rep.param("start_time_s", s.carpark.start_time);
+    rep.param("duration_s", s.carpark.duration);
+    rep.param("steps", steps);
+    rep.param("scan_every", s.scan_every);
+    rep.param("ess_threshold", s.ess_threshold);
+    rep.param("p", format!("{:?}", s.model.motion.p));
+    rep.param("q", format!("{:?}", s.model.motion.q));
+    rep.param(
+        "laser_var",
+        format!(
+            "[{}, {}]",
+            s.model.laser.var_range, s.model.laser.var_bearing
+        ),
+    );
+    rep.param("truth_noise", s.carpark.truth_noise);
+    rep.param(
+        "association",
+        format!(
+            "ML over landmarks within {} m, gate d2 < {}, new if all d2 > {}",
+            s.model.assoc.radius, s.model.assoc.gate, s.model.assoc.new_threshold
+        ),
+    );
+    for (i, &(name, m)) in s.methods.iter().enumerate() {
+        let col = |f: fn(&RunMetrics) -> f64| mean_se(&per[i].iter().map(f).collect::<Vec<_>>());
+        let (e, e_se) = col(|x| x.error_pct);
+        let (rms, rms_se) = col(|x| x.rms_m);
+        let (t, t_se) = col(|x| x.time_ms);
+        let (ts, _) = col(|x| x.time_s);
+        let (ess, _) = col(|x| x.ess_fraction);
+        let (mr, _) = col(|x| x.map_ratio);
+        rep.results.push(
+            Row::new(name)
+                .int("samples", m as u64)
+                .num("error_pct", e)
+                .num("error_pct_se", e_se)
+                .num("time_ms", t)
+                .num("time_ms_se", t_se)
+                .num("rms_m", rms)
+                .num("rms_m_se", rms_se)
+                .num("ess_fraction", ess)
+                .num("map_per_seen", mr)
+                .num("time_s", ts),
+        );
+    }
+    for &(m, f1, f2, im) in PAPER {
+        for (name, c) in [("fastslam1", f1), ("fastslam2", f2), ("implicit", im)] {
+            if let Some((t, e)) = c {
+                rep.paper.push(
+                    Row::new(name)
+                        .int("samples", m as u64)
+                        .num("error_pct", e)
+                        .num("time_ms", t),
+                );
+            }
+        }
+    }
+    rep.paper.push(
+        Row::new("ekf")
+            .int("samples", 1)
+            .num("error_pct", PAPER_EKF.1)
+            .num("time_ms", PAPER_EKF.0),
+    );
+    let r = runs as f64;
+    rep.notes.push(format!(
+        "{runs} data sets of {steps} odometry steps ({:.0} m of path, {:.0} returns handed to the filters, {:.1} distinct landmarks seen per data set)",
+        length / r,
+        picks_n as f64 / r,
+        seen_n as f64 / r
+    ));
+    rep.notes.extend(acceptance(&s.methods, &per));
+    rep.notes.push("the paper's figures are on its own synthetic car park (real odometry, synthetic laser, noise level and laser rate unstated); ours on the Victoria Park odometry: compare rankings and ratios, not absolute errors".into());
+    rep.notes.push(
+        "times are wall-clock on a shared 2-core machine under load from other builds".into(),
+    );
+    if let Some(path) = &s.plot {
+        write_plot(path, &rep)?;
+        rep.notes.push(format!("plot: {path}"));
+    }
+    Ok(rep)
+}
+
+/// The acceptance comparisons, paired over the data sets.
+pub fn acceptance(methods: &[(&str, usize)], per: &[Vec<RunMetrics>]) -> Vec<String> {
+    let idx = |name: &str, m: usize| methods.iter().position(|&x| x == (name, m));
+    let mean = |i: usize| mean_se(&per[i].iter().map(|x| x.error_pct).collect::<Vec<_>>()).0;
+    let paired = |a: usize, b: usize| {
+        let d: Vec<f64> = per[a]
+            .iter()
+            .zip(&per[b])
+            .map(|(x, y)| x.error_pct - y.error_pct)
+            .collect();
+        mean_se(&d)
+    };
+    let mut out = vec![];
+    let ekf = idx("ekf", 1);
+    for (a, b, paper) in [
+        (
+            ("implicit", 100),
+            ("fastslam2", 400),
+            "paper: 2.98% vs 4.83%",
+        ),
+        (("implicit", 100), ("ekf", 1), "paper: 2.98% vs 3.89%"),
+        (("fastslam2", 500), ("ekf", 1), "paper: 4.71% vs 3.89%"),
+        (
+            ("implicit-rb", 100),
+            ("fastslam2", 400),
+            "variant, not in the paper",
+        ),
+        (
+            ("implicit-rb", 100),
+            ("ekf", 1),
+            "variant, not in the paper",
+        ),
+        (
+            ("fastslam1", 1000),
+            ("fastslam2", 500),
+            "paper: 8.78% vs 4.71%",
+        ),
+    ] {
+        if let (Some(i), Some(j)) = (idx(a.0, a.1), idx(b.0, b.1)) {
+            let (d, se) = paired(i, j);
+            out.push(format!(
+                "{} at {}: {:.3}% vs {} at {}: {:.3}% (paired difference {d:.3} ± {se:.3}; {paper})",
+                a.0,
+                a.1,
+                mean(i),
+                b.0,
+                b.1,
+                mean(j)
+            ));
+        }
+    }
+    let best = |name: &str| {
+        (0..methods.len())
+            .filter(|&k| methods[k].0 == name)
+            .min_by(|&a, &b| mean(a).total_cmp(&mean(b)))
+    };
+    let mut line = String::from("best error per method:");
+    for name in ["implicit", "implicit-rb", "fastslam1", "fastslam2"] {
+        if let Some(b) = best(name) {
+            line += &format!(" {name} {:.3}% (M = {})", mean(b), methods[b].1);
+        }
+    }
+    if let Some(e) = ekf {
+        line += &format!(" ekf {:.3}%", mean(e));
+    }
+    out.push(line);
+    out
+}
+
+/// Two panels, ours and the paper's: error against time per update (log).
+pub fn write_plot(path: &str, rep: &Report) -> Result<(), LocalizationError> {
+    let mut svg = Svg::new(1200.0, 560.0);
+    svg.text(
+        20.0,
+        24.0,
+        18.0,
+        "SLAM: time per update vs trajectory error (paper 003 Table 6 / Fig. 7 right)",
+    );
+    let methods = ["implicit", "fastslam1", "fastslam2", "ekf", "implicit-rb"];
+    for (k, (title, rows)) in [
+        (
+            "ours: synthetic car park on Victoria Park odometry",
+            &rep.results,
+        ),
+        (
+            "paper: synthetic data on the University Car Park run",
+            &rep.paper,
+        ),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let pts = |name: &str| -> Vec<(f64, f64, u64)> {
+            let mut v: Vec<(f64, f64, u64)> = rows
+                .iter()
+                .filter(|r| r.method == name)
+                .filter_map(|r| {
+                    let m = r
+                        .metrics
+                        .get("samples")
+                        .and_then(|v| v.as_u64())
+                        .unwrap_or(0);
+                    Some((r.get("error_pct")?, r.get("time_ms")?, m))
+                })
+                .collect();
+            v.sort_by_key(|p| p.2);
+            v
+        };
+        let all: Vec<(f64, f64, u64)> = methods.iter().flat_map(|m| pts(m)).collect();
+        if all.is_empty() {
+            continue;
+        }
+        let (_, emax) = range(all.iter().map(|p| p.0), 0.1);
+        let tmin = all
+            .iter()
+            .map(|p| p.1)
+            .fold(f64::INFINITY, f64::min)
+            .max(1e-6);
+        let tmax = all.iter().map(|p| p.1).fold(0.0, f64::max).max(tmin * 2.0);
+        let panel = Panel {
+            x0: 90.0 + 600.0 * k as f64,
+            y0: 70.0,
+            w: 470.0,
+            h: 420.0,
+            xr: (0.0, emax.max(1e-9)),
+            yr: (tmin / 1.5, tmax * 1.5),
+            ylog: true,
+        };
+        svg.axes(&panel, title, "error (%)", "time per update (ms, log)");
+        for (c, name) in methods.iter().enumerate() {
+            let p = pts(name);
+            if p.is_empty() {
+                continue;
+            }
+            let line: Vec<(f64, f64)> = p.iter().map(|q| (q.0, q.1)).collect();
+            svg.line(&panel, &line, COLORS[c], 2.0);
+            for q in &p {
+                let lab = if *name == "ekf" {
+                    "EKF".to_string()
+                } else {
+                    q.2.to_string()
+                };
+                svg.dot(&panel, q.0, q.1, 4.0, COLORS[c], &lab);
+            }
+            svg.legend(
+                panel.x0 + panel.w - 130.0,
+                panel.y0 + 20.0 + 18.0 * c as f64,
+                COLORS[c],
+                name,
+            );
+        }
+    }
+    svg.write(path)
+}

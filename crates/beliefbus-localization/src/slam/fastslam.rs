@@ -1,0 +1,256 @@
+//! FastSLAM 1.0 (Montemerlo et al. 2002) and FastSLAM 2.0 (Montemerlo et
+//! al. 2003), the baselines of paper 003 §4.2: per particle a pose and one
+//! 2-D EKF (mean m, covariance P) per landmark.
+//!
+//! ```text
+//! 1.0  x^j ~ p(x | X^j, u)                       (motion-model proposal)
+//!      log W^j += Σ_known log N(ν; 0, H_m P H_mᵀ + Σ₂)  at the sampled pose
+//! 2.0  μ = f^j, Σ = Σ₁; for each known return:   (proposal including the observation)
+//!        Q = H_m P H_mᵀ + Σ₂,  S = H_x Σ H_xᵀ + Q,  log W^j += log N(ν(μ); 0, S)
+//!        K = Σ H_xᵀ S⁻¹,  μ += K ν,  Σ −= K S Kᵀ
+//!      x^j ~ N(μ, Σ)
+//! both: landmark EKF update at x^j  m += K_m ν,  P −= K_m S_m K_mᵀ,  K_m = P H_mᵀ S_m⁻¹
+//!       new landmark  m = g(x^j, z),  P = G_z Σ₂ G_zᵀ,  log W^j += log(r/A)
+//!       discarded return  log W^j += log(1/A)
+//! ```
+//!
+//! The association (shared rule, [`super::assoc`]) is made at f^j with
+//! S = H_x Σ₁ H_xᵀ + H_m P H_mᵀ + Σ₂. Particles' maps share blocks
+//! ([`super::map`]) so resampling copies are cheap.
+
+use super::assoc::{innovation, inverse, near, Association, Chooser, RangeBearing};
+use super::particles::SlamParticles;
+use super::{SlamFilter, SlamModel, SlamStats};
+use crate::carpark::normal3;
+use crate::error::LocalizationError;
+use crate::geometry::{frame_rotation, Point, Pose};
+use beliefbus_core::rng::SimRng;
+use nalgebra::{Matrix2, Matrix3, Vector2};
+
+/// One landmark's EKF.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Landmark {
+    pub m: Vector2<f64>,
+    pub p: Matrix2<f64>,
+}
+
+/// Which FastSLAM.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Version {
+    One,
+    Two,
+}
+
+/// log N(ν; 0, S) and S⁻¹ (None if S is not positive definite).
+pub fn log_normal(nu: &Vector2<f64>, s: &Matrix2<f64>) -> Option<(f64, Matrix2<f64>)> {
+    let det = s[(0, 0)] * s[(1, 1)] - s[(0, 1)] * s[(1, 0)];
+    if !(det > 0.0) {
+        return None;
+    }
+    let inv = Matrix2::new(s[(1, 1)], -s[(0, 1)], -s[(1, 0)], s[(0, 0)]) / det;
+    let ll = -(2.0 * std::f64::consts::PI).ln() - 0.5 * det.ln() - 0.5 * nu.dot(&(inv * nu));
+    Some((ll, inv))
+}
+
+/// The EKF update of a landmark seen from a known pose x; returns the new
+/// landmark and log N(ν; 0, H_m P H_mᵀ + Σ₂).
+pub fn update_landmark(
+    x: &Pose,
+    lm: &Landmark,
+    z: &RangeBearing,
+    r: &Matrix2<f64>,
+) -> Option<(Landmark, f64)> {
+    let (nu, _, hm) = innovation(x, [lm.m[0], lm.m[1]], z);
+    let s = hm * lm.p * hm.transpose() + r;
+    let (ll, sinv) = log_normal(&nu, &s)?;
+    let k = lm.p * hm.transpose() * sinv;
+    let p = lm.p - k * s * k.transpose();
+    Some((
+        Landmark {
+            m: lm.m + k * nu,
+            p: 0.5 * (p + p.transpose()),
+        },
+        ll,
+    ))
+}
+
+/// A new landmark from pose x and return z.
+pub fn init_landmark(x: &Pose, z: &RangeBearing, r: &Matrix2<f64>) -> Landmark {
+    let (m, _, gz) = inverse(x, z);
+    Landmark {
+        m: Vector2::new(m[0], m[1]),
+        p: gz * r * gz.transpose(),
+    }
+}
+
+/// FastSLAM 1.0 or 2.0 with M particles.
+#[derive(Clone, Debug)]
+pub struct FastSlam {
+    pub model: SlamModel,
+    pub version: Version,
+    pub set: SlamParticles<Landmark>,
+    stats: SlamStats,
+    step: usize,
+    assoc: Vec<Association>,
+}
+
+impl FastSlam {
+    pub fn new(
+        model: SlamModel,
+        version: Version,
+        m: usize,
+        ess_threshold: f64,
+    ) -> Result<Self, LocalizationError> {
+        model.validate()?;
+        Ok(Self {
+            model,
+            version,
+            set: SlamParticles::new(m, ess_threshold)?,
+            stats: SlamStats::default(),
+            step: 0,
+            assoc: Vec::with_capacity(32),
+        })
+    }
+}
+
+impl SlamFilter for FastSlam {
+    fn name(&self) -> &'static str {
+        match self.version {
+            Version::One => "fastslam1",
+            Version::Two => "fastslam2",
+        }
+    }
+
+    fn reset(&mut self, start: &Pose) {
+        self.set.reset(start);
+        self.stats = SlamStats::default();
+        self.step = 0;
+    }
+
+    fn step(
+        &mut self,
+        u: crate::vehicle::Control,
+        dt: f64,
+        obs: &[RangeBearing],
+        rng: &mut SimRng,
+    ) -> Result<Pose, LocalizationError> {
+        self.step += 1;
+        let step = self.step;
+        let (ute, noise) = self.model.step_noise(u, dt)?;
+        if obs.is_empty() {
+            for x in self.set.x.iter_mut() {
+                let xi = normal3(rng);
+                *x = ute.predict_mean(x, u) + noise.draw(x[2], &xi);
+            }
+            return Ok(self.set.estimate());
+        }
+        self.stats.updates += 1;
+        let model = self.model;
+        let r = model.r();
+        let log_new = model.log_new_density();
+        let s0 = noise.chol * noise.chol.transpose();
+        let bad = |what| LocalizationError::NonFinite { what, step };
+        for j in 0..self.set.len() {
+            let x = self.set.x[j];
+            let f = ute.predict_mean(&x, u);
+            let t = frame_rotation(x[2]);
+            let sx = t * s0 * t.transpose();
+            self.assoc.clear();
+            let map = &self.set.maps[j];
+            for z in obs {
+                let (zp, _, _) = inverse(&f, z);
+                let mut ch = Chooser::new();
+                for (k, lm) in map.iter().enumerate() {
+                    let m = [lm.m[0], lm.m[1]];
+                    if near(m, zp, &model.assoc) {
+                        let (nu, hx, hm) = innovation(&f, m, z);
+                        let s = hx * sx * hx.transpose() + hm * lm.p * hm.transpose() + r;
+                        ch.offer(k, &nu, &s, &model.assoc);
+                    }
+                }
+                self.assoc.push(ch.decide(&model.assoc));
+            }
+            let mut lw = 0.0;
+            let xi = normal3(rng);
+            let xn = match self.version {
+                Version::One => f + noise.draw(x[2], &xi),
+                Version::Two => {
+                    let (mut mu, mut sig) = (f, sx);
+                    for (z, a) in obs.iter().zip(&self.assoc) {
+                        if let Association::Known(k) = *a {
+                            let lm = map.get(k).expect("k < len");
+                            let (nu, hx, hm) = innovation(&mu, [lm.m[0], lm.m[1]], z);
+                            let s = hx * sig * hx.transpose() + hm * lm.p * hm.transpose() + r;
+                            let (ll, sinv) = log_normal(&nu, &s)
+                                .ok_or_else(|| bad("FastSLAM 2.0 innovation"))?;
+                            lw += ll;
+                            let k = sig * hx.transpose() * sinv;
+                            mu += k * nu;
+                            sig -= k * s * k.transpose();
+                            sig = 0.5 * (sig + sig.transpose());
+                        }
+                    }
+                    match sig.cholesky() {
+                        Some(c) => mu + c.l() * xi,
+                        None => {
+                            self.stats.fallbacks += 1;
+                            f + noise.draw(x[2], &xi)
+                        }
+                    }
+                }
+            };
+            if !xn.iter().all(|c| c.is_finite()) {
+                return Err(bad("FastSLAM pose"));
+            }
+            let map = &mut self.set.maps[j];
+            for (z, a) in obs.iter().zip(&self.assoc) {
+                match *a {
+                    Association::Known(k) => {
+                        let lm = *map.get(k).expect("k < len");
+                        let (nl, ll) =
+                            update_landmark(&xn, &lm, z, &r).ok_or_else(|| bad("landmark EKF"))?;
+                        if self.version == Version::One {
+                            lw += ll;
+                        }
+                        map.set(k, nl);
+                        self.stats.known += 1;
+                    }
+                    Association::New => {
+                        map.push(init_landmark(&xn, z, &r));
+                        lw += z.range.ln() + log_new;
+                        self.stats.new += 1;
+                    }
+                    Association::Discard => {
+                        lw += log_new;
+                        self.stats.discarded += 1;
+                    }
+                }
+            }
+            self.set.x[j] = xn;
+            self.set.logw[j] += lw;
+        }
+        self.set.reweight(step, rng)?;
+        Ok(self.set.estimate())
+    }
+
+    fn map(&self) -> Vec<Point> {
+        self.set.maps[self.set.best()]
+            .iter()
+            .map(|l| [l.m[0], l.m[1]])
+            .collect()
+    }
+
+    fn stats(&self) -> SlamStats {
+        SlamStats {
+            resamplings: self.set.resamplings,
+            ess_fraction_sum: self.set.ess_fraction_sum,
+            ..self.stats
+        }
+    }
+}
+
+/// Σ₁ in the world frame at heading β from the body-frame Cholesky factor.
+pub fn world_step_cov(chol: &Matrix3<f64>, beta: f64) -> Matrix3<f64> {
+    let t = frame_rotation(beta);
+    t * chol * chol.transpose() * t.transpose()
+}

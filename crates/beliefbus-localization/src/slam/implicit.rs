@@ -1,0 +1,299 @@
+//! SLAM with implicit sampling (paper 003 §4.2; the notes' §1.7, reading
+//! (i), and erratum E8). Particle j carries its pose X^j and a map of
+//! *sampled* landmark positions θ^{k,j} (no per-landmark covariance). At a
+//! step with returns, for each particle:
+//!
+//! ```text
+//! associate every return at f^j = X^j + R(X^j, u) δ (the shared ML rule)
+//! re-observed landmarks (any):   F^j(x) = ½‖x − f^j‖²_{Σ₁⁻¹} + Σ_i ½‖z^i − h(x, θ^{k_i,j})‖²_{Σ₂⁻¹}
+//!                                (implicit MCL with the particle's landmarks fixed)
+//! else, a new feature:           F^j(x, θ) joint in 5-D ([`super::joint`])
+//! sample  v = μ + L⁻ᵀ ξ,  log W^j += ½ ξᵀξ − F^j(v) − log det L + constants
+//! further new features given x:  θ from ½‖z − h(x, θ)‖²_{Σ₂⁻¹} by the same linear map in 2-D
+//! ```
+//!
+//! The constants (−½ log det Σ₁ wherever the linear map replaces the motion
+//! model as proposal, per re-observed return −log 2π − ½ log det Σ₂, per new
+//! one −½ log det Σ₂ + log(1/A), per discarded one log(1/A)) are those of
+//! the normalised target against the normalised proposal; they differ
+//! between particles only where the particles associate differently.
+//!
+//! Should Newton fail (a non-finite iterate) the particle moves by the
+//! motion model and is weighted by the likelihood, as in implicit MCL: the
+//! weights stay exact. Fallbacks are counted.
+
+use super::assoc::{innovation, inverse, near, Association, Chooser, RangeBearing};
+use super::joint::{minimise_joint, JointObjective};
+use super::particles::SlamParticles;
+use super::{SlamFilter, SlamModel, SlamStats};
+use crate::carpark::normal3;
+use crate::error::LocalizationError;
+use crate::geometry::{Point, Pose};
+use crate::laser::{add_term, term_cost, Curvature, Observation};
+use crate::mcl::newton::{minimise, NewtonSettings, Objective};
+use beliefbus_core::rng::SimRng;
+use nalgebra::{Matrix2, Matrix3, Vector2, Vector3, Vector5};
+use rand::RngExt;
+use rand_distr::StandardNormal;
+
+/// A sampled landmark: its position θ^{k,j} and the covariance of the
+/// draw that produced it (the θ-block of H⁻¹), used only by the shared
+/// association rule as the particle's landmark uncertainty Σ_m; F^j keeps
+/// θ fixed (reading (i)).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampledLandmark {
+    pub m: Point,
+    pub cov: Matrix2<f64>,
+}
+
+/// Implicit SLAM with M particles.
+#[derive(Clone, Debug)]
+pub struct ImplicitSlam {
+    pub model: SlamModel,
+    pub set: SlamParticles<SampledLandmark>,
+    pub newton: NewtonSettings,
+    stats: SlamStats,
+    step: usize,
+    known_obs: Vec<Observation>,
+    known_map: Vec<Point>,
+    new_obs: Vec<RangeBearing>,
+}
+
+impl ImplicitSlam {
+    pub fn new(
+        model: SlamModel,
+        m: usize,
+        ess_threshold: f64,
+        newton: NewtonSettings,
+    ) -> Result<Self, LocalizationError> {
+        model.validate()?;
+        Ok(Self {
+            model,
+            set: SlamParticles::new(m, ess_threshold)?,
+            newton,
+            stats: SlamStats::default(),
+            step: 0,
+            known_obs: Vec::with_capacity(32),
+            known_map: Vec::with_capacity(32),
+            new_obs: Vec::with_capacity(32),
+        })
+    }
+}
+
+/// Sample a new landmark given the pose x: θ = g(x, z) + L⁻ᵀ ξ with
+/// LLᵀ the Hessian of ½‖z − h(x, θ)‖²_{Σ₂⁻¹} at its minimiser g(x, z);
+/// returns θ and ½ ξᵀξ − F(θ) − log det L.
+fn sample_given_pose(
+    x: &Pose,
+    z: &RangeBearing,
+    model: &SlamModel,
+    rng: &mut SimRng,
+) -> Option<(SampledLandmark, f64)> {
+    let (m0, _, _) = inverse(x, z);
+    let o = Observation {
+        range: z.range,
+        bearing: z.bearing,
+        landmark: 0,
+    };
+    let (mut g, mut h) = (Vector3::zeros(), Matrix3::zeros());
+    add_term(x, m0, &o, &model.laser, Curvature::Exact, &mut g, &mut h);
+    let h2 = Matrix2::new(h[(0, 0)], h[(0, 1)], h[(1, 0)], h[(1, 1)]);
+    let l = h2.cholesky()?.l();
+    let xi = Vector2::new(rng.sample(StandardNormal), rng.sample(StandardNormal));
+    let y = l.tr_solve_lower_triangular(&xi)?;
+    let th = [m0[0] + y[0], m0[1] + y[1]];
+    let inc =
+        0.5 * xi.dot(&xi) - term_cost(x, th, &o, &model.laser) - l[(0, 0)].ln() - l[(1, 1)].ln();
+    let li = l.try_inverse()?;
+    inc.is_finite().then_some((
+        SampledLandmark {
+            m: th,
+            cov: li.transpose() * li,
+        },
+        inc,
+    ))
+}
+
+impl SlamFilter for ImplicitSlam {
+    fn name(&self) -> &'static str {
+        "implicit"
+    }
+
+    fn reset(&mut self, start: &Pose) {
+        self.set.reset(start);
+        self.stats = SlamStats::default();
+        self.step = 0;
+    }
+
+    fn step(
+        &mut self,
+        u: crate::vehicle::Control,
+        dt: f64,
+        obs: &[RangeBearing],
+        rng: &mut SimRng,
+    ) -> Result<Pose, LocalizationError> {
+        self.step += 1;
+        let step = self.step;
+        let (ute, noise) = self.model.step_noise(u, dt)?;
+        if obs.is_empty() {
+            for x in self.set.x.iter_mut() {
+                let xi = normal3(rng);
+                *x = ute.predict_mean(x, u) + noise.draw(x[2], &xi);
+            }
+            return Ok(self.set.estimate());
+        }
+        self.stats.updates += 1;
+        let model = self.model;
+        let r = model.r();
+        let half_logdet_r = 0.5 * (r[(0, 0)] * r[(1, 1)]).ln();
+        let ln2pi = (2.0 * std::f64::consts::PI).ln();
+        let log_new = model.log_new_density();
+        let s0 = noise.chol * noise.chol.transpose();
+        // −½ log det Σ₁: the motion density's normaliser, which the linear
+        // map's weight keeps and a motion-model proposal cancels.
+        let motion_norm = -(0..3).map(|i| noise.chol[(i, i)].ln()).sum::<f64>();
+        for j in 0..self.set.len() {
+            let x = self.set.x[j];
+            let f = ute.predict_mean(&x, u);
+            let t = crate::geometry::frame_rotation(x[2]);
+            let sx = t * s0 * t.transpose();
+            let prec = noise.precision(x[2]);
+            self.known_obs.clear();
+            self.known_map.clear();
+            self.new_obs.clear();
+            let mut discarded = 0usize;
+            let map = &self.set.maps[j];
+            for z in obs {
+                let (zp, _, _) = inverse(&f, z);
+                let mut ch = Chooser::new();
+                for (k, lm) in map.iter().enumerate() {
+                    if near(lm.m, zp, &model.assoc) {
+                        let (nu, hx, hm) = innovation(&f, lm.m, z);
+                        let s = hx * sx * hx.transpose() + hm * lm.cov * hm.transpose() + r;
+                        ch.offer(k, &nu, &s, &model.assoc);
+                    }
+                }
+                match ch.decide(&model.assoc) {
+                    Association::Known(k) => {
+                        self.known_obs.push(Observation {
+                            range: z.range,
+                            bearing: z.bearing,
+                            landmark: self.known_map.len(),
+                        });
+                        self.known_map.push(map.get(k).expect("k < len").m);
+                    }
+                    Association::New => self.new_obs.push(*z),
+                    Association::Discard => discarded += 1,
+                }
+            }
+            self.stats.known += self.known_obs.len();
+            self.stats.new += self.new_obs.len();
+            self.stats.discarded += discarded;
+            let mut lw = discarded as f64 * log_new;
+            let mut new_start = 0;
+            let xn;
+            if !self.known_obs.is_empty() {
+                let obj = Objective {
+                    f,
+                    prec,
+                    obs: &self.known_obs,
+                    map: &self.known_map,
+                    laser: model.laser,
+                };
+                let xi = normal3(rng);
+                let sample = minimise(&obj, &self.newton, step).ok().and_then(|m| {
+                    self.stats.newton_iters += m.iters;
+                    let y = m.l.tr_solve_lower_triangular(&xi)?;
+                    let xs = m.mu + y;
+                    let inc = 0.5 * xi.dot(&xi) - obj.value(&xs) - m.log_det_l;
+                    inc.is_finite().then_some((xs, inc))
+                });
+                let nk = self.known_obs.len() as f64;
+                lw -= nk * (ln2pi + half_logdet_r);
+                match sample {
+                    Some((xs, inc)) => {
+                        xn = xs;
+                        lw += inc + motion_norm;
+                    }
+                    None => {
+                        self.stats.fallbacks += 1;
+                        xn = f + noise.draw(x[2], &xi);
+                        for o in &self.known_obs {
+                            lw -= term_cost(&xn, self.known_map[o.landmark], o, &model.laser);
+                        }
+                    }
+                }
+            } else if let Some(z0) = self.new_obs.first().copied() {
+                let obj = JointObjective {
+                    f,
+                    prec,
+                    z: z0,
+                    laser: model.laser,
+                };
+                let xi = Vector5::from_fn(|_, _| rng.sample(StandardNormal));
+                let sample = minimise_joint(&obj, self.newton.max_iter, self.newton.tol, step)
+                    .ok()
+                    .and_then(|m| {
+                        self.stats.newton_iters += m.iters;
+                        let y = m.l.tr_solve_lower_triangular(&xi)?;
+                        let v = m.mu + y;
+                        let inc = 0.5 * xi.dot(&xi) - obj.value(&v) - m.log_det_l;
+                        // θ-block of H⁻¹ = L⁻ᵀ L⁻¹.
+                        let li = m.l.try_inverse()?;
+                        let hinv = li.transpose() * li;
+                        let cov =
+                            Matrix2::new(hinv[(3, 3)], hinv[(3, 4)], hinv[(4, 3)], hinv[(4, 4)]);
+                        inc.is_finite().then_some((v, inc, cov))
+                    });
+                match sample {
+                    Some((v, inc, cov)) => {
+                        xn = Pose::new(v[0], v[1], v[2]);
+                        lw += inc + motion_norm - half_logdet_r + log_new;
+                        self.set.maps[j].push(SampledLandmark {
+                            m: [v[3], v[4]],
+                            cov,
+                        });
+                        new_start = 1;
+                    }
+                    None => {
+                        self.stats.fallbacks += 1;
+                        xn = f + noise.draw(x[2], &Vector3::new(xi[0], xi[1], xi[2]));
+                    }
+                }
+            } else {
+                xn = f + noise.draw(x[2], &normal3(rng));
+            }
+            for z in &self.new_obs[new_start..] {
+                let (th, inc) =
+                    sample_given_pose(&xn, z, &model, rng).ok_or(LocalizationError::NonFinite {
+                        what: "new landmark sample",
+                        step,
+                    })?;
+                lw += inc - half_logdet_r + log_new;
+                self.set.maps[j].push(th);
+            }
+            if !xn.iter().all(|c| c.is_finite()) {
+                return Err(LocalizationError::NonFinite {
+                    what: "implicit SLAM pose",
+                    step,
+                });
+            }
+            self.set.x[j] = xn;
+            self.set.logw[j] += lw;
+        }
+        self.set.reweight(step, rng)?;
+        Ok(self.set.estimate())
+    }
+
+    fn map(&self) -> Vec<Point> {
+        self.set.maps[self.set.best()].iter().map(|l| l.m).collect()
+    }
+
+    fn stats(&self) -> SlamStats {
+        SlamStats {
+            resamplings: self.set.resamplings,
+            ess_fraction_sum: self.set.ess_fraction_sum,
+            ..self.stats
+        }
+    }
+}

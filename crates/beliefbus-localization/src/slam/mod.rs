@@ -1,0 +1,126 @@
+//! Online SLAM on the Ute vehicle (paper 003 §4.2): implicit SLAM and its
+//! three baselines behind one interface, [`SlamFilter`]:
+//!
+//! - [`implicit::ImplicitSlam`]: per-particle pose and sampled landmark
+//!   positions; a new feature is sampled jointly with the pose from the 5-D
+//!   F^j(x_n, θ_n) ([`joint`]), a re-observed one gives the implicit MCL
+//!   step with the particle's landmark fixed (the notes' §1.7 reading (i));
+//! - [`fastslam::FastSlam`]: FastSLAM 1.0 (motion-model proposal) and 2.0
+//!   (proposal including the observation), per-landmark EKFs;
+//! - [`ekf::EkfSlam`]: the joint-state EKF, augmented on a new landmark.
+//!
+//! Every filter associates each return by the one maximum-likelihood rule
+//! with the same gates ([`assoc`]), predicts with the same kinematics (E10)
+//! and noise Σ₁ = T(β) Σ₀(u) T(β)ᵀ every odometry step, and weighs returns
+//! with the same Σ₂. A return associated with no landmark starts one; the
+//! flat prior on its position is taken uniform over the laser's forward
+//! half circle (area A = π r_max²/2), which fixes the weight of a new
+//! landmark against a re-observed one: r/A after θ is integrated out.
+
+pub mod assoc;
+pub mod driver;
+pub mod ekf;
+pub mod fastslam;
+pub mod implicit;
+pub mod implicit_rb;
+pub mod joint;
+pub mod map;
+pub mod particles;
+#[cfg(test)]
+mod tests;
+
+use crate::error::LocalizationError;
+use crate::geometry::{Point, Pose};
+use crate::laser::LaserNoise;
+use crate::vehicle::{Control, MotionNoise, StepNoise, Ute};
+use assoc::{AssocConfig, RangeBearing};
+use beliefbus_core::rng::SimRng;
+use nalgebra::Matrix2;
+
+/// The models every SLAM filter shares.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlamModel {
+    /// Vehicle geometry; its `dt` is replaced by each step's own.
+    pub ute: Ute,
+    pub motion: MotionNoise,
+    pub laser: LaserNoise,
+    pub assoc: AssocConfig,
+    /// Laser radius (m), for the new-landmark prior.
+    pub max_range: f64,
+}
+
+impl SlamModel {
+    /// Check the noise settings.
+    pub fn validate(&self) -> Result<(), LocalizationError> {
+        self.motion.validate()?;
+        LocalizationError::positive("laser variance of range", self.laser.var_range)?;
+        LocalizationError::positive("laser variance of bearing", self.laser.var_bearing)?;
+        LocalizationError::positive("max_range", self.max_range)?;
+        LocalizationError::positive("association gate", self.assoc.gate)?;
+        LocalizationError::positive("association radius", self.assoc.radius)?;
+        if !(self.assoc.new_threshold >= self.assoc.gate) {
+            return Err(LocalizationError::Invalid {
+                name: "new-landmark threshold",
+                value: self.assoc.new_threshold,
+                need: "must be ≥ the association gate",
+            });
+        }
+        Ok(())
+    }
+
+    /// Σ₂.
+    pub fn r(&self) -> Matrix2<f64> {
+        Matrix2::new(self.laser.var_range, 0.0, 0.0, self.laser.var_bearing)
+    }
+
+    /// log of the new-landmark prior density 1/A.
+    pub fn log_new_density(&self) -> f64 {
+        -(std::f64::consts::PI * self.max_range * self.max_range / 2.0).ln()
+    }
+
+    /// The vehicle and the shared step noise for a step of length dt.
+    pub fn step_noise(&self, u: Control, dt: f64) -> Result<(Ute, StepNoise), LocalizationError> {
+        LocalizationError::positive("dt", dt)?;
+        let ute = Ute { dt, ..self.ute };
+        Ok((ute, StepNoise::new(&ute, u, &self.motion)?))
+    }
+}
+
+/// Counters over a run.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SlamStats {
+    /// Steps with at least one return.
+    pub updates: usize,
+    pub resamplings: usize,
+    /// Sum of ESS/M over the updates (particle filters).
+    pub ess_fraction_sum: f64,
+    /// Newton steps (implicit SLAM).
+    pub newton_iters: usize,
+    /// Particle updates that fell back to the motion-model proposal.
+    pub fallbacks: usize,
+    /// Returns associated with a known landmark / starting one / discarded
+    /// (summed over particles for the particle filters).
+    pub known: usize,
+    pub new: usize,
+    pub discarded: usize,
+}
+
+/// An online SLAM filter: one call per odometry sample.
+pub trait SlamFilter {
+    /// The method's name in reports.
+    fn name(&self) -> &'static str;
+    /// Start again at a known pose with an empty map.
+    fn reset(&mut self, start: &Pose);
+    /// Move by control u over dt seconds, then take the returns `obs` seen
+    /// at the end of the step (may be empty); the pose estimate.
+    fn step(
+        &mut self,
+        u: Control,
+        dt: f64,
+        obs: &[RangeBearing],
+        rng: &mut SimRng,
+    ) -> Result<Pose, LocalizationError>;
+    /// The map estimate (the heaviest particle's map for particle filters).
+    fn map(&self) -> Vec<Point>;
+    fn stats(&self) -> SlamStats;
+}

@@ -1,0 +1,132 @@
+//! The weighted particle set of the particle SLAM filters: each particle a
+//! pose and its own [`SharedMap`], log weights, ESS-triggered systematic
+//! resampling (`beliefbus_core::filter::resample::systematic`) that copies
+//! maps by sharing their blocks, and the weighted-mean pose estimate.
+//! Buffers are sized once; resampling a map copies block pointers into a
+//! reused buffer.
+
+use super::map::SharedMap;
+use crate::error::LocalizationError;
+use crate::geometry::Pose;
+use beliefbus_core::filter::resample::systematic;
+use beliefbus_core::math::weights::normalise;
+use beliefbus_core::rng::SimRng;
+
+/// M particles, each a pose and a map of landmarks `L`.
+#[derive(Clone, Debug)]
+pub struct SlamParticles<L: Clone> {
+    pub x: Vec<Pose>,
+    pub maps: Vec<SharedMap<L>>,
+    pub logw: Vec<f64>,
+    pub w: Vec<f64>,
+    anc: Vec<usize>,
+    tmp_x: Vec<Pose>,
+    tmp_maps: Vec<SharedMap<L>>,
+    pub ess_threshold: f64,
+    pub updates: usize,
+    pub resamplings: usize,
+    pub ess_fraction_sum: f64,
+}
+
+impl<L: Clone> SlamParticles<L> {
+    pub fn new(m: usize, ess_threshold: f64) -> Result<Self, LocalizationError> {
+        if m == 0 {
+            return Err(LocalizationError::Invalid {
+                name: "particles",
+                value: 0.0,
+                need: "must be at least 1",
+            });
+        }
+        if !(0.0..=1.0).contains(&ess_threshold) {
+            return Err(LocalizationError::Invalid {
+                name: "ess_threshold",
+                value: ess_threshold,
+                need: "must lie in [0, 1]",
+            });
+        }
+        Ok(Self {
+            x: vec![Pose::zeros(); m],
+            maps: vec![SharedMap::new(); m],
+            logw: vec![0.0; m],
+            w: vec![1.0 / m as f64; m],
+            anc: vec![0; m],
+            tmp_x: vec![Pose::zeros(); m],
+            tmp_maps: vec![SharedMap::new(); m],
+            ess_threshold,
+            updates: 0,
+            resamplings: 0,
+            ess_fraction_sum: 0.0,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Every particle at `start` with an empty map and equal weights.
+    pub fn reset(&mut self, start: &Pose) {
+        let m = self.len();
+        self.x.fill(*start);
+        for mp in self.maps.iter_mut() {
+            *mp = SharedMap::new();
+        }
+        self.logw.fill(0.0);
+        self.w.fill(1.0 / m as f64);
+        self.updates = 0;
+        self.resamplings = 0;
+        self.ess_fraction_sum = 0.0;
+    }
+
+    /// Normalise, record the ESS, resample if ESS < threshold · M.
+    pub fn reweight(&mut self, step: usize, rng: &mut SimRng) -> Result<f64, LocalizationError> {
+        let m = self.len();
+        let s = normalise(&self.logw, &mut self.w).ok_or(LocalizationError::Degenerate { step })?;
+        self.updates += 1;
+        self.ess_fraction_sum += s.ess / m as f64;
+        if s.ess < self.ess_threshold * m as f64 {
+            systematic(&self.w, rng, &mut self.anc)
+                .map_err(|_| LocalizationError::Degenerate { step })?;
+            for (k, &a) in self.anc.iter().enumerate() {
+                self.tmp_x[k] = self.x[a];
+                self.tmp_maps[k].share_from(&self.maps[a]);
+            }
+            std::mem::swap(&mut self.x, &mut self.tmp_x);
+            std::mem::swap(&mut self.maps, &mut self.tmp_maps);
+            self.logw.fill(0.0);
+            self.w.fill(1.0 / m as f64);
+            self.resamplings += 1;
+        } else {
+            for (l, &w) in self.logw.iter_mut().zip(&self.w) {
+                *l = w.ln();
+            }
+        }
+        Ok(s.ess)
+    }
+
+    /// Weighted mean pose (circular mean of the heading).
+    pub fn estimate(&self) -> Pose {
+        let (mut x, mut y, mut c, mut s) = (0.0, 0.0, 0.0, 0.0);
+        for (p, &w) in self.x.iter().zip(&self.w) {
+            x += w * p[0];
+            y += w * p[1];
+            c += w * p[2].cos();
+            s += w * p[2].sin();
+        }
+        Pose::new(x, y, s.atan2(c))
+    }
+
+    /// Index of the heaviest particle.
+    pub fn best(&self) -> usize {
+        let mut b = 0;
+        for (k, &w) in self.w.iter().enumerate() {
+            if w > self.w[b] {
+                b = k;
+            }
+        }
+        b
+    }
+}
