@@ -230,7 +230,8 @@ impl Scenario for CarparkScenario {
     fn build(p: CarparkParams, ctx: &BuildContext) -> Result<Box<dyn System>, String> {
         p.validate()?;
         let dir = victoria::resolve_dir((!p.data_dir.is_empty()).then_some(p.data_dir.as_str()));
-        let rec = victoria::load(&dir).map_err(|e| e.to_string())?;
+        let rec = victoria::load(&dir)
+            .map_err(|e| format!("{e} (or set carpark.data_dir in the config)"))?;
         let mut rng = crate::rng::stream(p.data_seed, 0);
         let cp =
             CarPark::generate(&rec, &p.carpark_config(), &mut rng).map_err(|e| e.to_string())?;
