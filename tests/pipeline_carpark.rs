@@ -13,7 +13,7 @@
 use serde_json::Value;
 use std::process::Command;
 
-fn run(backend: &str) -> Option<Value> {
+fn run(backend: &str, controller: &str) -> Option<Value> {
     let data = beliefbus_localization::victoria::resolve_dir(None);
     // The run starts in a scratch directory: pass the folder absolute.
     let data = std::fs::canonicalize(&data).unwrap_or(data);
@@ -26,7 +26,7 @@ fn run(backend: &str) -> Option<Value> {
         return None;
     }
     let dir = std::env::temp_dir().join(format!(
-        "beliefbus-carpark-{backend}-{}",
+        "beliefbus-carpark-{backend}-{controller}-{}",
         std::process::id()
     ));
     std::fs::create_dir_all(&dir).unwrap();
@@ -44,7 +44,12 @@ fn run(backend: &str) -> Option<Value> {
             "--set",
             &format!("carpark.data_dir={:?}", data.display().to_string()),
         ])
-        .args(["--set", &format!("filter.backend={backend:?}"), "--report"])
+        .args(["--set", &format!("filter.backend={backend:?}")])
+        .args([
+            "--set",
+            &format!("control.backend={controller:?}"),
+            "--report",
+        ])
         .arg(&report)
         .current_dir(&dir)
         .output()
@@ -108,14 +113,36 @@ fn check(r: &Value, backend: &str) {
 
 #[test]
 fn implicit_mcl_localizes_live_on_two_channels() {
-    if let Some(r) = run("implicit-mcl") {
+    if let Some(r) = run("implicit-mcl", "none") {
         check(&r, "implicit-mcl");
     }
 }
 
 #[test]
 fn standard_mcl_localizes_live_on_two_channels() {
-    if let Some(r) = run("mcl") {
+    if let Some(r) = run("mcl", "none") {
         check(&r, "mcl");
     }
+}
+
+/// With `pure-pursuit` the vehicle drives itself on the filter's belief:
+/// a control for (nearly) every odometry sample reaches the plant, and the
+/// vehicle stays near the path the landmarks line.
+#[test]
+fn pure_pursuit_drives_the_car_on_implicit_mcl() {
+    let Some(r) = run("implicit-mcl", "pure-pursuit") else {
+        return;
+    };
+    check(&r, "implicit-mcl");
+    assert_eq!(r["controller"], "pure-pursuit");
+    let m = &r["scenario_metrics"]["carpark"];
+    // (The acceptance run asks >= 95 %; a loaded CI machine gets slack.)
+    let f = m["controlled_fraction"].as_f64().unwrap();
+    assert!(f >= 0.9, "{m}");
+    assert!(
+        r["control"]["controls_received"].as_u64().unwrap() > 300,
+        "{}",
+        r["control"]
+    );
+    assert!(m["path_rmse_m"].as_f64().unwrap() < 2.0, "{m}");
 }

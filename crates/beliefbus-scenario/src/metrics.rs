@@ -43,6 +43,8 @@ pub struct BeliefView<'a> {
 pub struct ControlView<'a> {
     /// The sensor sample whose belief it was computed from.
     pub sensor_seq: u64,
+    /// That sample's channel.
+    pub sensor_channel: u32,
     pub u: &'a [f64],
     /// Computed (false: the stage's fallback to the last good control).
     pub ok: bool,

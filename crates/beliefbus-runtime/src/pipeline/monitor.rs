@@ -202,6 +202,7 @@ impl AccuracyTracker {
             let n = (c.dim as usize).min(crate::MAX_CONTROL);
             m.control(&crate::scenario::ControlView {
                 sensor_seq: c.trace.sensor_seq,
+                sensor_channel: c.trace.sensor_channel,
                 u: &c.u[..n],
                 ok: c.status == crate::ipc::control_status::OK,
             });

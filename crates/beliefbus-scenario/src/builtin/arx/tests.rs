@@ -220,6 +220,7 @@ fn the_report_replays_the_oracle_and_times_detections() {
         };
         m.control(&ControlView {
             sensor_seq: seq,
+            sensor_channel: 0,
             u: &[u],
             ok: true,
         });

@@ -15,14 +15,22 @@
 //!   from receiving an observation to publishing its belief
 //!   (t_filter_out − t_filter_in), split into laser steps (the odometry
 //!   sample that applied a scan: measured at the scan's time), prediction
-//!   steps, and laser samples (buffering only).
+//!   steps, and laser samples (buffering only);
+//! - `controls`, `controlled_fraction`: controls computed (not the stage's
+//!   fallback) from odometry-sample beliefs, over odometry samples
+//!   published (controls after laser samples are counted apart);
+//! - `path_rmse_m`: the true laser point's distance to the data set's path
+//!   (what `pure-pursuit` follows; 0 while replaying it), over the counted
+//!   odometry samples.
 
 use super::encoding::{read_slot, LASER0};
 use super::{CarparkSystem, LASER, ODOMETRY, STATE};
-use crate::metrics::{BeliefView, RunMetrics, TruthView};
+use crate::metrics::{BeliefView, ControlView, RunMetrics, TruthView};
+use beliefbus_localization::carpark::CarPark;
 use beliefbus_localization::geometry::{wrap_angle, Pose};
 use beliefbus_localization::vehicle::{Control, Ute};
 use serde_json::{json, Value};
+use std::sync::Arc;
 
 /// Scan times remembered.
 const SCAN_RING: usize = 16;
@@ -64,6 +72,14 @@ fn timing(ns: &[u64]) -> Value {
 
 /// The accumulator.
 pub struct CarparkMetrics {
+    cp: Arc<CarPark>,
+    /// Controls computed from odometry beliefs, from laser beliefs, and
+    /// the stage's fallbacks.
+    controls: u64,
+    laser_controls: u64,
+    fallbacks: u64,
+    path_index: usize,
+    path_se: f64,
     ute: Ute,
     sample_dt: f64,
     particles: usize,
@@ -100,6 +116,12 @@ impl CarparkMetrics {
     pub fn new(sys: &CarparkSystem) -> Self {
         let x0 = sys.carpark.truth[0];
         Self {
+            cp: sys.carpark.clone(),
+            controls: 0,
+            laser_controls: 0,
+            fallbacks: 0,
+            path_index: 0,
+            path_se: 0.0,
             ute: sys.carpark.ute,
             sample_dt: sys.sample_dt,
             particles: sys.params.filter.particles,
@@ -136,8 +158,11 @@ impl RunMetrics for CarparkMetrics {
                     let ute = Ute { dt, ..self.ute };
                     self.dr = ute.predict_mean(&self.dr, Control { v, alpha: t.y[1] });
                 }
+                let (i, d) = super::control::nearest(&self.cp, self.path_index, t.x[0], t.x[1]);
+                self.path_index = i;
                 if t.counted {
                     self.dead_reckoning.add(self.dr.as_slice(), t.x);
+                    self.path_se += d * d;
                 }
             }
             LASER if t.y.len() > LASER0 + 5 => {
@@ -172,6 +197,14 @@ impl RunMetrics for CarparkMetrics {
         }
     }
 
+    fn control(&mut self, c: &ControlView) {
+        match (c.ok, c.sensor_channel) {
+            (true, ODOMETRY) => self.controls += 1,
+            (true, _) => self.laser_controls += 1,
+            (false, _) => self.fallbacks += 1,
+        }
+    }
+
     fn report(&self) -> Value {
         let (pos, heading) = self.filter.rms();
         let (dr_pos, dr_heading) = self.dead_reckoning.rms();
@@ -199,6 +232,13 @@ impl RunMetrics for CarparkMetrics {
             "time_laser_step": timing(&self.laser_step_ns),
             "time_prediction_step": timing(&self.predict_ns),
             "time_laser_sample": timing(&self.laser_sample_ns),
+            "controls": self.controls,
+            "controls_on_laser_samples": self.laser_controls,
+            "control_fallbacks": self.fallbacks,
+            "controlled_fraction": (self.truths[0] > 0)
+                .then(|| self.controls as f64 / self.truths[0] as f64),
+            "path_rmse_m": (self.dead_reckoning.n > 0)
+                .then(|| (self.path_se / self.dead_reckoning.n as f64).sqrt()),
         })
     }
 }

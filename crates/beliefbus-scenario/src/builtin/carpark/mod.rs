@@ -26,8 +26,13 @@
 //! - `filter.backend = "implicit-mcl"`: implicit MCL ([`filter`]);
 //! - `filter.backend = "mcl"`: standard MCL, the same models and data;
 //!
-//! both on the map known to the filter, estimation only (the run has no
-//! control input: the vehicle follows the recorded drive). The report's
+//! both on the map known to the filter; and optionally
+//! - `control.backend = "pure-pursuit"`: steer along the data set's path
+//!   from the belief ([`control`]); the plant then drives itself with the
+//!   recorded wheel speed and the commanded steering ([`plant`]).
+//!
+//! Estimation only by default (`control.backend = "none"`: the vehicle
+//! replays the recorded drive; the control is the steering α). The report's
 //! `scenario_metrics.carpark` ([`metrics`]) gives the pose error against
 //! dead reckoning, the ESS, the time per update and the per-channel counts.
 //!
@@ -36,15 +41,17 @@
 //! set is drawn from `data_seed` when the system is built: every process
 //! builds the same one, and the filter knows its landmark map.
 
+pub mod control;
 pub mod encoding;
 pub mod filter;
 pub mod metrics;
 pub mod plant;
 
-use crate::backends::FilterContext;
+use crate::backends::{ControlContext, FilterContext};
 use crate::metrics::RunMetrics;
 use crate::model::Dims;
 use crate::{BuildContext, DiscreteSpec, Dynamics, Plant, Scenario, SensorChannel, System};
+use beliefbus_core::control::Controller;
 use beliefbus_core::filter::BayesFilter;
 use beliefbus_localization::carpark::{CarPark, CarParkConfig};
 use beliefbus_localization::victoria;
@@ -55,6 +62,8 @@ use std::sync::Arc;
 pub const IMPLICIT: &str = "implicit-mcl";
 /// Filter backend: standard MCL.
 pub const STANDARD: &str = "mcl";
+/// Controller: pure pursuit along the path.
+pub const PURE_PURSUIT: &str = "pure-pursuit";
 /// Channel ids.
 pub const ODOMETRY: u32 = 0;
 pub const LASER: u32 = 1;
@@ -88,6 +97,18 @@ pub struct CarparkParams {
     pub max_features: usize,
     /// `[carpark.filter]`: backends `implicit-mcl` and `mcl`.
     pub filter: CarparkFilterParams,
+    /// `[carpark.control]`: controller `pure-pursuit`.
+    pub control: CarparkControlParams,
+}
+
+/// `[carpark.control]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CarparkControlParams {
+    /// Look-ahead distance ℓ along the path (m).
+    pub lookahead_m: f64,
+    /// Steering limit (rad); the plant clamps to it too.
+    pub max_steering: f64,
 }
 
 /// `[carpark.filter]`.
@@ -125,6 +146,10 @@ impl Default for CarparkParams {
                 ess_threshold: 0.5,
                 newton_max_iter: 20,
                 newton_tol: 1e-3,
+            },
+            control: CarparkControlParams {
+                lookahead_m: 8.0,
+                max_steering: 0.6,
             },
         }
     }
@@ -164,6 +189,15 @@ impl CarparkParams {
             return Err(format!(
                 "filter.ess_threshold must be in [0, 1], got {}",
                 f.ess_threshold
+            ));
+        }
+        let c = &self.control;
+        if !(c.lookahead_m.is_finite() && c.lookahead_m > 0.0)
+            || !(c.max_steering > 0.0 && c.max_steering < 1.2)
+        {
+            return Err(format!(
+                "control.lookahead_m must be > 0 and control.max_steering in (0, 1.2) rad, got {} and {}",
+                c.lookahead_m, c.max_steering
             ));
         }
         if f.newton_max_iter == 0 || !(f.newton_tol.is_finite() && f.newton_tol > 0.0) {
@@ -214,7 +248,7 @@ impl Scenario for CarparkScenario {
     type Params = CarparkParams;
     const NAME: &'static str = "carpark";
     const SUMMARY: &'static str =
-        "synthetic car park on Victoria Park odometry (paper 003 sec. 4.1): odometry + laser channels, implicit/standard MCL";
+        "synthetic car park on Victoria Park odometry (paper 003 sec. 4.1): odometry + laser channels, implicit/standard MCL, optional pure pursuit";
     const CONFIG: &'static str = include_str!("../../../../../configs/carpark.toml");
     fn defaults(_ctx: &BuildContext) -> CarparkParams {
         CarparkParams::default()
@@ -249,7 +283,7 @@ impl System for CarparkSystem {
                 state: STATE,
                 noise: STATE,
                 obs: encoding::OBS,
-                control: 0,
+                control: 1,
             },
             // The control noise P read as one step's σ; the landmark index
             // is exact.
@@ -291,8 +325,8 @@ impl System for CarparkSystem {
             },
         ]
     }
-    fn plant(&self, x0: &[f64], _seed: u64, _max_dt: f64) -> Result<Box<dyn Plant>, String> {
-        Ok(Box::new(plant::CarparkPlant::new(self, x0)?))
+    fn plant(&self, x0: &[f64], seed: u64, _max_dt: f64) -> Result<Box<dyn Plant>, String> {
+        Ok(Box::new(plant::CarparkPlant::new(self, x0, seed)?))
     }
     fn filter_backends(&self) -> Vec<&'static str> {
         vec![IMPLICIT, STANDARD]
@@ -311,6 +345,17 @@ impl System for CarparkSystem {
             filter::MclFilter::new(self, ctx, implicit)
                 .map(|f| Box::new(f) as Box<dyn BayesFilter>),
         )
+    }
+    fn controller_backends(&self) -> Vec<&'static str> {
+        vec![PURE_PURSUIT]
+    }
+    fn controller(
+        &self,
+        name: &str,
+        _ctx: &ControlContext,
+    ) -> Option<Result<Box<dyn Controller>, String>> {
+        (name == PURE_PURSUIT)
+            .then(|| control::PurePursuit::new(self).map(|c| Box::new(c) as Box<dyn Controller>))
     }
     fn run_metrics(&self) -> Option<Box<dyn RunMetrics>> {
         Some(Box::new(metrics::CarparkMetrics::new(self)))
