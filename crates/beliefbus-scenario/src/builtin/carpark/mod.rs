@@ -192,9 +192,9 @@ impl CarparkParams {
             ));
         }
         let c = &self.control;
-        if !(c.lookahead_m.is_finite() && c.lookahead_m > 0.0)
-            || !(c.max_steering > 0.0 && c.max_steering < 1.2)
-        {
+        let lookahead_ok = c.lookahead_m.is_finite() && c.lookahead_m > 0.0;
+        let steering_ok = c.max_steering > 0.0 && c.max_steering < 1.2;
+        if !(lookahead_ok && steering_ok) {
             return Err(format!(
                 "control.lookahead_m must be > 0 and control.max_steering in (0, 1.2) rad, got {} and {}",
                 c.lookahead_m, c.max_steering
