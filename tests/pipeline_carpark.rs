@@ -61,7 +61,10 @@ fn run(backend: &str, controller: &str) -> Option<Value> {
     Some(r)
 }
 
-fn check(r: &Value, backend: &str) {
+/// What every run must show; `vs_dead_reckoning`: the replayed data set,
+/// whose dead reckoning drifts by 2 m (a self-driving plant draws its own
+/// path noise from the run seed, and its dead reckoning may not drift).
+fn check(r: &Value, backend: &str, vs_dead_reckoning: bool) {
     assert_eq!(r["scenario"], "carpark");
     assert_eq!(r["filter_backend"], backend);
     for s in ["ingest", "filter", "plant"] {
@@ -92,20 +95,18 @@ fn check(r: &Value, backend: &str) {
         f("ess_min") >= 1.0 - 1e-9 && f("ess_mean") <= 100.0 + 1e-9,
         "{m}"
     );
-    // The laser pulls the estimate below dead reckoning's error.
     let (pose, dr) = (
         f("pose_rmse_position_m"),
         f("dead_reckoning_rmse_position_m"),
     );
-    assert!(dr > 1.0, "the stretch's dead reckoning drifts: {m}");
-    assert!(
-        pose < dr && pose < 1.5,
-        "filter {pose} m vs dead reckoning {dr} m"
-    );
-    assert!(
-        f("pose_rmse_heading_rad") < f("dead_reckoning_rmse_heading_rad"),
-        "{m}"
-    );
+    assert!(pose < 1.5, "filter {pose} m: {m}");
+    if vs_dead_reckoning {
+        // The laser pulls the estimate below dead reckoning's error.
+        assert!(dr > 1.0, "the stretch's dead reckoning drifts: {m}");
+        assert!(pose < dr, "filter {pose} m vs dead reckoning {dr} m");
+        let heading = f("pose_rmse_heading_rad");
+        assert!(heading < f("dead_reckoning_rmse_heading_rad"), "{m}");
+    }
     let prefix = r["prefix"].as_str().unwrap();
     assert!(beliefbus::ipc::cleanup::resources(prefix).is_empty());
     assert_eq!(r["shared_memory"]["files_left"], 0);
@@ -114,14 +115,14 @@ fn check(r: &Value, backend: &str) {
 #[test]
 fn implicit_mcl_localizes_live_on_two_channels() {
     if let Some(r) = run("implicit-mcl", "none") {
-        check(&r, "implicit-mcl");
+        check(&r, "implicit-mcl", true);
     }
 }
 
 #[test]
 fn standard_mcl_localizes_live_on_two_channels() {
     if let Some(r) = run("mcl", "none") {
-        check(&r, "mcl");
+        check(&r, "mcl", true);
     }
 }
 
@@ -133,7 +134,7 @@ fn pure_pursuit_drives_the_car_on_implicit_mcl() {
     let Some(r) = run("implicit-mcl", "pure-pursuit") else {
         return;
     };
-    check(&r, "implicit-mcl");
+    check(&r, "implicit-mcl", false);
     assert_eq!(r["controller"], "pure-pursuit");
     let m = &r["scenario_metrics"]["carpark"];
     // (The acceptance run asks >= 95 %; a loaded CI machine gets slack.)
