@@ -7,6 +7,8 @@ use crate::model::vanderpol::{VanDerPol, VanDerPolParams};
 
 pub mod arx;
 pub use arx::ArxScenario;
+pub mod carpark;
+pub use carpark::CarparkScenario;
 
 /// The drifting ship of paper 001 eq. (10)–(11) with a control force,
 /// range–bearing sensor, waypoint route.

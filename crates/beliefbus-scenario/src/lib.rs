@@ -297,7 +297,37 @@ pub trait Plant: Send {
     /// the control in force was set and before [`Plant::measure`]:
     /// x_k = F(x_{k−1}, u_{k−1}, w_k). Default: nothing (an SDE plant moves
     /// in [`Plant::advance`], which a discrete-time plant leaves empty).
+    /// A multi-rate plant moves to the sample [`Plant::next_sample`]
+    /// announced.
     fn step(&mut self) {}
+    /// When the next sample is taken and on which channel. Default:
+    /// [`NextSample::Periodic`], one channel every sensor period. A plant
+    /// with several sensors at their own rates (odometry at 40 Hz and a
+    /// laser at 5 Hz, an IMU and a GPS) announces each sample; the plant
+    /// stage sleeps until its time, moves the plant there
+    /// ([`Plant::advance`] with the controls in force, then
+    /// [`Plant::step`]), and publishes [`Plant::measure`]'s components of
+    /// that channel. The answer must not change until [`Plant::step`] is
+    /// called.
+    fn next_sample(&mut self) -> NextSample {
+        NextSample::Periodic
+    }
+}
+
+/// A plant's next sample ([`Plant::next_sample`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum NextSample {
+    /// One sample every `plant.sensor_rate_hz` on `plant.channel`, carrying
+    /// the whole observation vector (or the scenario's single channel).
+    Periodic,
+    /// A sample of channel `channel` (an index into
+    /// [`System::sensor_channels`]) measured `t` seconds after the plant
+    /// started; times never decrease. [`Plant::measure`] then needs to
+    /// fill only that channel's components.
+    At { channel: usize, t: f64 },
+    /// No more samples (a recorded drive that has ended): the plant idles
+    /// until the run stops.
+    Done,
 }
 
 /// RNG stream id of the plant (mixed with `run.seed`).

@@ -7,8 +7,11 @@
 /// The plant's truth at one sensor sample.
 #[derive(Clone, Copy, Debug)]
 pub struct TruthView<'a> {
-    /// The sample's sequence number (a discrete-time system's step − 1).
+    /// The sample's sequence number on its channel (a discrete-time
+    /// system's step − 1).
     pub seq: u64,
+    /// The sensor channel id the sample was published on.
+    pub channel: u32,
     /// Measurement time (ns, monotonic clock).
     pub t_ns: u64,
     /// Measured after `run.warmup_s` (figures count only these).
@@ -23,6 +26,14 @@ pub struct TruthView<'a> {
 #[derive(Clone, Copy, Debug)]
 pub struct BeliefView<'a> {
     pub sensor_seq: u64,
+    /// The channel of that sample.
+    pub sensor_channel: u32,
+    /// The filter's effective sample size after the update (0 for a
+    /// Gaussian filter).
+    pub ess: f64,
+    /// The filter stage's time on this observation (ns, from receiving it
+    /// to publishing the belief; 0 when unknown).
+    pub filter_ns: u64,
     pub mean: &'a [f64],
     pub cov: &'a [f64],
 }
@@ -32,6 +43,8 @@ pub struct BeliefView<'a> {
 pub struct ControlView<'a> {
     /// The sensor sample whose belief it was computed from.
     pub sensor_seq: u64,
+    /// That sample's channel.
+    pub sensor_channel: u32,
     pub u: &'a [f64],
     /// Computed (false: the stage's fallback to the last good control).
     pub ok: bool,

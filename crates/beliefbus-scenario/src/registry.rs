@@ -134,7 +134,8 @@ impl Registry {
         let mut r = Self::empty()
             .with::<super::builtin::ShipScenario>()
             .with::<super::builtin::VanDerPolScenario>()
-            .with::<super::builtin::ArxScenario>();
+            .with::<super::builtin::ArxScenario>()
+            .with::<super::builtin::CarparkScenario>();
         r.builtin_only = true;
         r.default = Some(super::builtin::ShipScenario::NAME);
         r

@@ -25,6 +25,9 @@ use std::time::Instant;
 const TRUTH_RING: usize = 4096;
 /// Beliefs waiting for their truth.
 const MAX_PENDING: usize = 1024;
+/// Channels whose truths are kept (one ring each: sequence numbers count
+/// per channel, so two channels' samples must not share a slot).
+const MAX_TRUTH_CHANNELS: usize = 8;
 
 /// Accumulated estimation error.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -48,7 +51,8 @@ pub struct AccuracyTracker {
     warmup_ns: u64,
     first_ns: Option<u64>,
     latest_ns: u64,
-    ring: Vec<Option<Truth>>,
+    /// (channel, its truths by sequence number).
+    rings: Vec<(u32, Vec<Option<Truth>>)>,
     pending: Vec<Belief>,
     se_pos: f64,
     se_state: f64,
@@ -71,6 +75,7 @@ fn truth_view(t: &Truth, counted: bool) -> crate::scenario::TruthView<'_> {
     let (d, m, c) = (t.dim as usize, t.obs_dim as usize, t.control_dim as usize);
     crate::scenario::TruthView {
         seq: t.header.seq,
+        channel: t.channel,
         t_ns: t.header.t_valid_ns,
         counted,
         x: &t.x[..d.min(MAX_STATE)],
@@ -85,7 +90,7 @@ impl AccuracyTracker {
             warmup_ns,
             first_ns: None,
             latest_ns: 0,
-            ring: vec![None; TRUTH_RING],
+            rings: Vec::with_capacity(MAX_TRUTH_CHANNELS),
             pending: Vec::with_capacity(MAX_PENDING),
             se_pos: 0.0,
             se_state: 0.0,
@@ -119,7 +124,15 @@ impl AccuracyTracker {
             }
         }
         self.latest_ns = self.latest_ns.max(t.header.t_valid_ns);
-        self.ring[(t.header.seq as usize) % TRUTH_RING] = Some(*t);
+        let i = match self.rings.iter().position(|r| r.0 == t.channel) {
+            Some(i) => i,
+            None if self.rings.len() < MAX_TRUTH_CHANNELS => {
+                self.rings.push((t.channel, vec![None; TRUTH_RING]));
+                self.rings.len() - 1
+            }
+            None => return,
+        };
+        self.rings[i].1[(t.header.seq as usize) % TRUTH_RING] = Some(*t);
     }
 
     /// Add a belief; it is scored once its truth is known.
@@ -142,7 +155,13 @@ impl AccuracyTracker {
 
     fn score(&mut self, b: &Belief) -> bool {
         let seq = b.trace.sensor_seq;
-        let Some(t) = self.ring[(seq as usize) % TRUTH_RING] else {
+        let channel = b.trace.sensor_channel;
+        let Some(t) = self
+            .rings
+            .iter()
+            .find(|r| r.0 == channel)
+            .and_then(|r| r.1[(seq as usize) % TRUTH_RING])
+        else {
             return false;
         };
         if t.header.seq != seq || t.channel != b.trace.sensor_channel {
@@ -163,6 +182,12 @@ impl AccuracyTracker {
             let bd = (b.dim as usize).min(MAX_STATE);
             let view = crate::scenario::BeliefView {
                 sensor_seq: seq,
+                sensor_channel: channel,
+                ess: b.ess,
+                filter_ns: b
+                    .trace
+                    .t_filter_out_ns
+                    .saturating_sub(b.trace.t_filter_in_ns),
                 mean: &b.mean[..bd],
                 cov: &b.cov[..bd * bd],
             };
@@ -177,6 +202,7 @@ impl AccuracyTracker {
             let n = (c.dim as usize).min(crate::MAX_CONTROL);
             m.control(&crate::scenario::ControlView {
                 sensor_seq: c.trace.sensor_seq,
+                sensor_channel: c.trace.sensor_channel,
                 u: &c.u[..n],
                 ok: c.status == crate::ipc::control_status::OK,
             });
@@ -411,6 +437,35 @@ mod tests {
         // State errors: 1 (velocity) and 3: √((1 + 9)/2).
         assert!((s.rmse_state.unwrap() - 5f64.sqrt()).abs() < 1e-12);
         assert!((s.rmse_position_raw.unwrap() - 1.0).abs() < 1e-9);
+    }
+
+    /// Two channels number their samples independently: a belief is
+    /// scored against the truth of its own channel, not the other
+    /// channel's sample with the same number.
+    #[test]
+    fn channels_with_equal_sequence_numbers_keep_their_own_truth() {
+        let mut a = AccuracyTracker::new(ship(), 0);
+        let mut t0 = truth(7, 10, [3.0, 4.0, 0.0, 0.0]);
+        t0.channel = 0;
+        let mut t1 = truth(7, 20, [0.0, 5.0, 0.0, 0.0]);
+        t1.channel = 1;
+        a.add_truth(&t0);
+        a.add_truth(&t1);
+        let mut b0 = belief(7, [3.0, 4.0, 0.0, 0.0]);
+        b0.trace.sensor_channel = 0;
+        let mut b1 = belief(7, [0.0, 2.0, 0.0, 0.0]);
+        b1.trace.sensor_channel = 1;
+        a.add_belief(&b0);
+        a.add_belief(&b1);
+        let s = a.summary();
+        assert_eq!(s.beliefs, 2);
+        // Errors 0 (channel 0) and 3 (channel 1).
+        assert!((s.rmse_position.unwrap() - (4.5f64).sqrt()).abs() < 1e-12);
+        // A belief of a channel without truth waits.
+        let mut b2 = belief(7, [0.0; 4]);
+        b2.trace.sensor_channel = 2;
+        a.add_belief(&b2);
+        assert_eq!(a.summary().beliefs, 2);
     }
 
     #[test]

@@ -11,6 +11,13 @@
 //! samples: it takes one step per sample ([`crate::scenario::Plant::step`])
 //! with the control in force at t_k.
 //!
+//! A multi-rate plant (several sensors at their own rates, e.g. odometry
+//! at 40 Hz and a laser at 5 Hz) announces each sample
+//! ([`crate::scenario::Plant::next_sample`]): the plant wakes at that
+//! sample's time instead of the next period, moves there, and publishes
+//! the announced channel's components on that channel's id, numbered per
+//! channel; its truth carries the same channel and number.
+//!
 //! Controls act as a zero-order hold from their publish time: controls that
 //! arrived during the interval split it into segments, each integrated with
 //! the control in force. (The plant reads them at its tick, so it never needs
@@ -26,6 +33,7 @@ use crate::ipc::{
 };
 use crate::rng;
 use crate::rt::Clock;
+use crate::scenario::NextSample;
 use crate::{MAX_CONTROL, MAX_OBS};
 use std::sync::atomic::AtomicBool;
 
@@ -187,15 +195,53 @@ pub fn run_resumed(
         control_dim: dims.control as u32,
         ..Truth::default()
     };
+    // A multi-rate plant's channels and their numbering (after a restart
+    // every channel continues above the last truth's number, which only
+    // skips numbers).
+    let channels = system.sensor_channels();
+    let mut channel_seq = vec![seq0; channels.len()];
 
     ports.stats.publish(&m, clock.now_ns(), false)?;
     let t0 = clock.now_ns();
     let mut t_prev = t0;
     let mut k: u64 = 0;
     while !stopped(stop) && max_samples.is_none_or(|n| k < n) {
-        let mut t_k = t0 + (k + 1) * period_ns;
+        let (mut t_k, at) = match sim.next_sample() {
+            NextSample::Periodic => (t0 + (k + 1) * period_ns, None),
+            NextSample::At { channel, t } => {
+                if channel >= channels.len() || !(t.is_finite() && t >= 0.0) {
+                    let _ = ports.stats.publish(&m, clock.now_ns(), true);
+                    return Err(StageError::Fatal(format!(
+                        "the plant announced a sample on channel index {channel} at {t} s; \
+                         the scenario has {} channels and times are finite and >= 0",
+                        channels.len()
+                    )));
+                }
+                // Never before the previous sample (times do not decrease).
+                (
+                    t0.saturating_add((t * 1e9).round() as u64).max(t_prev),
+                    Some(channel),
+                )
+            }
+            NextSample::Done => {
+                // The drive is over: idle until the run stops.
+                clock.sleep_until_ns(clock.now_ns() + period_ns);
+                ports.stats.tick(&m, clock.now_ns())?;
+                continue;
+            }
+        };
         let now = clock.now_ns();
-        if now > t_k + MAX_BEHIND * period_ns {
+        if at.is_some() && now > t_k + MAX_BEHIND * period_ns {
+            // Far behind a multi-rate plant's sample: move past it
+            // unpublished (the controls read at the next sample still
+            // take effect from their publish times).
+            m.count_drop(DropReason::Stale, 1);
+            sim.advance(t_k.saturating_sub(t_prev) as f64 * 1e-9);
+            sim.step();
+            t_prev = t_k;
+            continue;
+        }
+        if at.is_none() && now > t_k + MAX_BEHIND * period_ns {
             // Far behind (e.g. the machine stalled): skip to the present.
             let skip = (now - t_k) / period_ns;
             m.count_drop(DropReason::Stale, skip);
@@ -281,14 +327,32 @@ pub fn run_resumed(
         }
 
         sim.measure(&mut y[..dims.obs]);
-        sample.seq = seq0 + k;
+        let seq = match at {
+            None => {
+                sample.values[..dims.obs].copy_from_slice(&y[..dims.obs]);
+                seq0 + k
+            }
+            Some(i) => {
+                // The announced channel's components, in its order.
+                let c = &channels[i];
+                sample.channel = c.id;
+                sample.dim = c.components.len() as u32;
+                sample.values.fill(0.0);
+                for (v, &j) in sample.values.iter_mut().zip(&c.components) {
+                    *v = y[j];
+                }
+                truth.channel = c.id;
+                channel_seq[i] += 1;
+                channel_seq[i] - 1
+            }
+        };
+        sample.seq = seq;
         sample.t_meas_ns = t_k;
-        sample.values[..dims.obs].copy_from_slice(&y[..dims.obs]);
         let t_pub = clock.now_ns();
         sample.t_pub_ns = t_pub;
         ports.sensor.publish(&sample)?;
 
-        truth.header.seq = seq0 + k;
+        truth.header.seq = seq;
         truth.header.t_valid_ns = t_k;
         truth.header.t_pub_ns = clock.now_ns();
         truth.x[..dims.state].copy_from_slice(sim.state());

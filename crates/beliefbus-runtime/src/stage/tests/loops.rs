@@ -172,6 +172,53 @@ fn plant_is_periodic_deterministic_and_applies_controls() {
     assert!(fin3.mean_goal_distance > 0.0);
 }
 
+/// A multi-rate plant (the car park: odometry at 40 Hz, laser scans in
+/// between) publishes each channel with its own id, dimension and
+/// numbering at the times it announced, each truth on the sample's channel
+/// and number. Needs the Victoria Park data (skipped without them).
+#[test]
+fn a_multi_rate_plant_numbers_each_channel_and_keeps_its_times() {
+    let cfg = match load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/carpark.toml"),
+        &[format!("run.prefix=\"{}\"", cleanup::run_prefix())],
+    ) {
+        Ok(c) => c,
+        Err(e) if e.to_string().contains("Victoria Park data not found") => {
+            eprintln!("skipped: {e}");
+            return;
+        }
+        Err(e) => panic!("{e}"),
+    };
+    let _c = Cleanup(cfg.run.prefix.clone());
+    let (truths, samples, fin) = plant_truth(&cfg, 240, None);
+    assert_eq!(fin.processed, 240);
+    assert_eq!(samples.len(), 240);
+    let (mut odo, mut laser) = (0u64, 0u64);
+    for (s, t) in samples.iter().zip(&truths) {
+        assert_eq!((t.channel, t.header.seq), (s.channel, s.seq));
+        assert_eq!(t.header.t_valid_ns, s.t_meas_ns);
+        match s.channel {
+            0 => {
+                assert_eq!((s.dim, s.seq), (2, odo));
+                // 40 Hz from the start: odometry n at t0 + 25 ms n.
+                odo += 1;
+                let dt = s.t_meas_ns - 1_000_000_000;
+                assert!(dt.abs_diff(odo * 25_000_000) < 1_000, "{dt}");
+            }
+            1 => {
+                assert_eq!((s.dim, s.seq), (6, laser));
+                laser += 1;
+                // A landmark index in the first slot.
+                assert!(s.values[2] >= 0.0 && s.values[2].fract() == 0.0);
+            }
+            c => panic!("channel {c}"),
+        }
+    }
+    assert!(samples.windows(2).all(|w| w[1].t_meas_ns >= w[0].t_meas_ns));
+    // About 5 s of driving: ~200 odometry samples and some scans.
+    assert!(odo > 180 && laser > 5, "{odo} {laser}");
+}
+
 #[test]
 fn all_stage_loops_close_the_loop_in_one_process() {
     let cfg = test_config(&[

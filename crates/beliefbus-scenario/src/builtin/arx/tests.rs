@@ -176,6 +176,7 @@ fn the_controller_applies_the_rules_to_the_predictive() {
 fn feed(m: &mut ArxMetrics, seq: u64, x: &[f64; STATE], u: f64, counted: bool) {
     m.truth(&TruthView {
         seq,
+        channel: 0,
         t_ns: seq,
         counted,
         x,
@@ -219,6 +220,7 @@ fn the_report_replays_the_oracle_and_times_detections() {
         };
         m.control(&ControlView {
             sensor_seq: seq,
+            sensor_channel: 0,
             u: &[u],
             ok: true,
         });
@@ -229,11 +231,15 @@ fn the_report_replays_the_oracle_and_times_detections() {
         m.belief(
             &BeliefView {
                 sensor_seq: seq,
+                sensor_channel: 0,
+                ess: 0.0,
+                filter_ns: 0,
                 mean: &b,
                 cov: &[0.0; STATE * STATE],
             },
             &TruthView {
                 seq,
+                channel: 0,
                 t_ns: seq,
                 counted: true,
                 x: &x,
