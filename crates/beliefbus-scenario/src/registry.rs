@@ -134,7 +134,8 @@ impl Registry {
         let mut r = Self::empty()
             .with::<super::builtin::ShipScenario>()
             .with::<super::builtin::VanDerPolScenario>()
-            .with::<super::builtin::ArxScenario>();
+            .with::<super::builtin::ArxScenario>()
+            .with::<super::builtin::InventoryScenario>();
         r.builtin_only = true;
         r.default = Some(super::builtin::ShipScenario::NAME);
         r
@@ -223,7 +224,7 @@ pub fn supported_filters(sys: &dyn System) -> Vec<&'static str> {
         if super::full_rank_diffusion(&m, &sys.prior().0) {
             v.push("chain");
         }
-        v.extend(["pf", "ekf", "ukf"]);
+        v.extend(["pf", "ekf", "ukf", "projection-pf"]);
     }
     v.extend(sys.filter_backends());
     v
