@@ -226,11 +226,11 @@ impl System for InventorySystem {
     fn initial_state(&self) -> Vec<f64> {
         vec![self.params.x0, 0.0, 0.0]
     }
-    /// x_0 is known; the other entries are the period's demand and cost,
-    /// nominal here.
+    /// x_0 is known: a nominal std of 10⁻⁶ (the config asks for positive
+    /// ones); the other entries are the period's demand and cost, nominal.
     fn prior(&self) -> (Vec<f64>, Vec<f64>) {
         let b = self.params.demand_mean;
-        (vec![self.params.x0, b, 0.0], vec![0.0, b, 0.0])
+        (vec![self.params.x0, b, 0.0], vec![1e-6, b, 1e-6])
     }
     fn sensor_channels(&self) -> Vec<SensorChannel> {
         vec![SensorChannel {

@@ -1,6 +1,13 @@
 //! The true inventory behind the plant stage: one period per sensor sample
 //! ([`Plant::step`]) under the order in force, exponential demand and
-//! Gaussian count noise from the plant's own seeded stream.
+//! Gaussian count noise.
+//!
+//! The random numbers are the `inventory-average` experiment's: its
+//! environment stream of run 0 at seed `run.seed`, drawn in its order (per
+//! period the demand, then the standardised count noise). A live run of
+//! seed S therefore meets the demands and noises of the first periods of
+//! `beliefbus experiment inventory-average --seed S`: the two differ only
+//! by the filter's own draws and by the pipeline's timing.
 //!
 //! The first sample measures x_0 (no period has passed); each later one
 //! first runs the period x_{k+1} = max(x_k + u_k − d_k, 0) with u_k the
@@ -9,7 +16,8 @@
 
 use super::{InventorySystem, STATE};
 use crate::rng::SimRng;
-use crate::{Plant, PLANT_STREAM};
+use crate::Plant;
+use beliefbus_projection::inventory::sim::env_rng;
 use beliefbus_projection::inventory::Inventory;
 use rand::RngExt;
 use rand_distr::StandardNormal;
@@ -23,6 +31,8 @@ pub struct InventoryPlant {
     u: [f64; 1],
     u_applied: f64,
     started: bool,
+    /// The demand of the period that starts at the last measurement.
+    demand: f64,
     rng: SimRng,
 }
 
@@ -42,7 +52,8 @@ impl InventoryPlant {
             u: [0.0],
             u_applied: 0.0,
             started: false,
-            rng: crate::rng::stream(seed, PLANT_STREAM),
+            demand: 0.0,
+            rng: env_rng(seed, 0),
         })
     }
 }
@@ -73,13 +84,14 @@ impl Plant for InventoryPlant {
             return;
         }
         let a = usize::from(self.u[0] > 0.0);
-        let d = self.model.sample_demand(&mut self.rng);
+        let d = self.demand;
         self.x[2] = self.model.cost(self.x[0], a, d);
         self.x[1] = d;
         self.x[0] = self.model.next_state(self.x[0], a, d);
         self.u_applied = self.u[0];
     }
     fn measure(&mut self, y: &mut [f64]) {
+        self.demand = self.model.sample_demand(&mut self.rng);
         let v: f64 = self.rng.sample(StandardNormal);
         y[0] = self.x[0] + self.model.sigma * v;
         if y.len() > 1 {

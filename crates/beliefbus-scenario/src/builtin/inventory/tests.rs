@@ -38,29 +38,33 @@ fn filter_ctx(sys: &InventorySystem) -> FilterContext {
     }
 }
 
+/// The plant runs the stated dynamics on the `inventory-average`
+/// experiment's random numbers: run 0 of its seed, period by period.
 #[test]
-fn the_plant_measures_x0_then_steps_the_stated_dynamics() {
+fn the_plant_measures_x0_then_steps_on_the_experiments_demands() {
     let sys = system(InventoryParams::default());
+    let n = 200;
+    let sc = beliefbus_projection::inventory::sim::Scenario::new(&sys.model, 3, 0, n + 1);
     let mut plant = plant::InventoryPlant::new(&sys, &sys.initial_state(), 3).unwrap();
     let mut y = [0.0; 2];
     plant.step();
     assert_eq!(plant.state(), &[5.0, 0.0, 0.0], "the first sample is x_0's");
     plant.measure(&mut y);
-    assert_eq!(y[1], 0.0);
+    assert_eq!(y, [5.0 + 1.3 * sc.xi[0], 0.0]);
     let mut x = 5.0;
-    for k in 0..200 {
+    for k in 0..n {
         let order = if k % 3 == 0 { 10.0 } else { 0.0 };
         plant.set_control(&[order]);
         plant.step();
         let s = plant.state();
-        let d = s[1];
-        assert!(d >= 0.0);
+        let d = sc.demand[k];
+        assert_eq!(s[1], d, "step {k}");
         let a = usize::from(order > 0.0);
         assert_eq!(s[2], sys.model.cost(x, a, d), "step {k}");
         x = (x + order - d).max(0.0);
         assert_eq!(s[0], x, "step {k}");
         plant.measure(&mut y);
-        assert_eq!(y[1], order);
+        assert_eq!(y, [x + 1.3 * sc.xi[k + 1], order]);
     }
     // An order is 0 or Q whatever the controller sends.
     plant.set_control(&[7.0]);
@@ -78,7 +82,7 @@ fn the_filter_is_the_projection_pf_on_the_inventory_model() {
     let ctx = filter_ctx(&sys);
     let mut f = filter::InventoryPpf::new(&sys, &ctx).unwrap();
     let fam = beliefbus_projection::Gaussian::new(1).unwrap();
-    let prior = fam.params(&[5.0], &[0.0]).unwrap();
+    let prior = fam.params(&[5.0], &[1e-12]).unwrap();
     let mut bare = beliefbus_projection::ProjectionPf::new(fam, 200, &prior).unwrap();
     let mut rng = crate::rng::stream(7, 0);
     let mut plant = plant::InventoryPlant::new(&sys, &sys.initial_state(), 9).unwrap();
@@ -203,8 +207,10 @@ fn metrics_compare_with_the_threshold_policy_on_the_same_demands() {
     let mut m = metrics::InventoryMetrics::new(&sys);
     let (mut xf, mut ours, mut full) = (5.0, 0.0, 0.0);
     let n = 4000;
+    let mut y = [0.0; 2];
     for seq in 0..=n {
         plant.step();
+        plant.measure(&mut y);
         let x = plant.state().to_vec();
         let u = plant.control().to_vec();
         m.truth(&TruthView {
