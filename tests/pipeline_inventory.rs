@@ -60,7 +60,10 @@ fn the_inventory_scenario_solves_its_policy_then_runs_it_live() {
         "beliefbus solve inventory --set inventory.policy.mc_samples=100 --set inventory.policy.cost_samples=5000 --out {}",
         policy.display()
     );
-    assert!(err.contains("no policy file") && err.contains(&cmd), "{err}");
+    assert!(
+        err.contains("no policy file") && err.contains(&cmd),
+        "{err}"
+    );
 
     // Solve it (the command the error names).
     let mut solve = vec!["solve", "inventory", "--out", policy.to_str().unwrap()];
@@ -71,7 +74,10 @@ fn the_inventory_scenario_solves_its_policy_then_runs_it_live() {
     assert!(out.contains("lookup_ns"), "{out}");
 
     // Solved for another σ: stale, refused.
-    let o = beliefbus(&dir, &[&run_args[..], &["--set", "inventory.sigma=0.5"]].concat());
+    let o = beliefbus(
+        &dir,
+        &[&run_args[..], &["--set", "inventory.sigma=0.5"]].concat(),
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("stale") && err.contains("sigma"), "{err}");
@@ -99,7 +105,10 @@ fn the_inventory_scenario_solves_its_policy_then_runs_it_live() {
     // (A loaded CI machine may deliver a few controls after the next period.)
     assert!(m["controlled_fraction"].as_f64().unwrap() > 0.9, "{m}");
     // The filter beats the raw count.
-    assert!(m["filter_rmse"].as_f64().unwrap() < m["raw_rmse"].as_f64().unwrap(), "{m}");
+    assert!(
+        m["filter_rmse"].as_f64().unwrap() < m["raw_rmse"].as_f64().unwrap(),
+        "{m}"
+    );
 
     // The same policy off-line (10⁵ periods, other random numbers): the
     // live average cost within 4 combined standard errors.

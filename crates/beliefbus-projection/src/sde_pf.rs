@@ -168,10 +168,7 @@ mod tests {
     #[test]
     fn matches_the_kalman_filter_on_a_linear_gaussian_sde() {
         let d = data(20, 0.05);
-        let exact = run(
-            &mut Kalman::new(oscillator(), &prior(), 0.0).unwrap(),
-            &d,
-        );
+        let exact = run(&mut Kalman::new(oscillator(), &prior(), 0.0).unwrap(), &d);
         let runs = 16;
         let mut stats = vec![[0.0; 5]; runs];
         for (r, s) in stats.iter_mut().enumerate() {
@@ -228,8 +225,14 @@ mod tests {
         let p = f.particles();
         let m0 = p.chunks_exact(2).map(|x| x[0]).sum::<f64>() / n;
         let v0 = p.chunks_exact(2).map(|x| (x[0] - m0).powi(2)).sum::<f64>() / n;
-        assert!((m0 - g.mean[0]).abs() < 4.5 * (g.cov[0] / n).sqrt(), "{m0} vs {g:?}");
-        assert!((v0 / g.cov[0] - 1.0).abs() < 4.5 * (2.0 / n).sqrt(), "{v0} vs {g:?}");
+        assert!(
+            (m0 - g.mean[0]).abs() < 4.5 * (g.cov[0] / n).sqrt(),
+            "{m0} vs {g:?}"
+        );
+        assert!(
+            (v0 / g.cov[0] - 1.0).abs() < 4.5 * (2.0 / n).sqrt(),
+            "{v0} vs {g:?}"
+        );
         // The prediction publishes the propagated particles' moments.
         f.predict(d[1].0, &[d[1].1]).unwrap();
         assert_ne!(f.belief(), g);

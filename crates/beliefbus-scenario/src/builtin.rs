@@ -207,10 +207,7 @@ mod tests {
         let info = Registry::builtin().describe();
         let ship = info[0].as_ref().unwrap();
         assert_eq!((ship.name, ship.state, ship.control), ("ship", 4, 2));
-        assert_eq!(
-            ship.filters,
-            ["chain", "pf", "ekf", "ukf", "projection-pf"]
-        );
+        assert_eq!(ship.filters, ["chain", "pf", "ekf", "ukf", "projection-pf"]);
         assert_eq!(ship.controllers, ["implicit", "mppi", "none"]);
         let vdp = info[1].as_ref().unwrap();
         assert_eq!(vdp.controllers, ["none"]);

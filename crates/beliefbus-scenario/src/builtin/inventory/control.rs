@@ -132,7 +132,11 @@ pub fn time_lookup(policy: &GridPolicy, n: usize) -> f64 {
         policy: policy.clone(),
         q: 1.0,
     };
-    let span = policy.grid.axes.first().map_or(1.0, |a| a.value(a.count - 1));
+    let span = policy
+        .grid
+        .axes
+        .first()
+        .map_or(1.0, |a| a.value(a.count - 1));
     let mut g = Gaussian::zeros(super::STATE);
     let mut total = 0.0;
     let start = Instant::now();

@@ -84,9 +84,7 @@ fn start_params(
     start: &Gaussian,
 ) -> Result<GaussianParams, String> {
     let (m, v) = (start.mean[0].max(0.0), start.cov_at(0, 0).max(0.0));
-    family
-        .params(&[m], &[v])
-        .map_err(|e| format!("prior: {e}"))
+    family.params(&[m], &[v]).map_err(|e| format!("prior: {e}"))
 }
 
 fn filter_error(e: ProjectionError) -> FilterError {

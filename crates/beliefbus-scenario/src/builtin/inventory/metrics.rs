@@ -140,7 +140,12 @@ impl RunMetrics for InventoryMetrics {
         let some = |v: f64| (n > 0).then_some(v);
         let (c, c_se) = batch_means(&self.ours, BATCHES);
         let (f, f_se) = batch_means(&self.full, BATCHES);
-        let diff: Vec<f64> = self.ours.iter().zip(&self.full).map(|(a, b)| a - b).collect();
+        let diff: Vec<f64> = self
+            .ours
+            .iter()
+            .zip(&self.full)
+            .map(|(a, b)| a - b)
+            .collect();
         let (dv, dv_se) = batch_means(&diff, BATCHES);
         let b = self.beliefs as f64;
         json!({

@@ -263,9 +263,9 @@ impl System for InventorySystem {
         _ctx: &ControlContext,
     ) -> Option<Result<Box<dyn Controller>, String>> {
         match name {
-            BELIEF_MDP => Some(
-                control::BeliefMdp::new(self).map(|c| Box::new(c) as Box<dyn Controller>),
-            ),
+            BELIEF_MDP => {
+                Some(control::BeliefMdp::new(self).map(|c| Box::new(c) as Box<dyn Controller>))
+            }
             CE => Some(Ok(Box::new(control::CeThreshold::new(self)))),
             _ => None,
         }

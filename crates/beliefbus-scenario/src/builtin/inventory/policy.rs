@@ -100,8 +100,16 @@ impl InventorySystem {
             }
         }
         let ints = [
-            ("policy.mc_samples", p.policy.mc_samples as u64, d.policy.mc_samples as u64),
-            ("policy.cost_samples", p.policy.cost_samples as u64, d.policy.cost_samples as u64),
+            (
+                "policy.mc_samples",
+                p.policy.mc_samples as u64,
+                d.policy.mc_samples as u64,
+            ),
+            (
+                "policy.cost_samples",
+                p.policy.cost_samples as u64,
+                d.policy.cost_samples as u64,
+            ),
             ("policy.seed", p.policy.seed, d.policy.seed),
         ];
         for (k, v, def) in ints {

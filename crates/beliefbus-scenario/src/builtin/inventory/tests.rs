@@ -13,12 +13,17 @@ fn system(p: InventoryParams) -> InventorySystem {
 
 /// A policy solve small enough for a unit test.
 fn small(path: &std::path::Path, sigma: f64) -> InventoryParams {
-    let mut p = InventoryParams::default();
-    p.sigma = sigma;
-    p.policy.path = path.display().to_string();
-    p.policy.mc_samples = 20;
-    p.policy.cost_samples = 200;
-    p
+    let d = InventoryParams::default();
+    InventoryParams {
+        sigma,
+        policy: InventoryPolicyParams {
+            path: path.display().to_string(),
+            mc_samples: 20,
+            cost_samples: 200,
+            ..d.policy
+        },
+        ..d
+    }
 }
 
 fn temp(name: &str) -> std::path::PathBuf {
@@ -125,7 +130,13 @@ fn belief_mdp_needs_a_current_policy_and_names_the_command() {
     let path = temp("stale");
     let _ = std::fs::remove_file(&path);
     let sys = system(small(&path, 1.3));
-    let e = sys.controller(BELIEF_MDP, &ControlContext { seed: 1, sample_dt: 1e-3 });
+    let e = sys.controller(
+        BELIEF_MDP,
+        &ControlContext {
+            seed: 1,
+            sample_dt: 1e-3,
+        },
+    );
     let e = e.unwrap().err().unwrap();
     assert!(e.contains("no policy file"), "{e}");
     let cmd = format!(
@@ -149,14 +160,31 @@ fn belief_mdp_needs_a_current_policy_and_names_the_command() {
     assert_eq!(out.path, path);
     assert!(!log.is_empty());
     let e = sys
-        .controller(BELIEF_MDP, &ControlContext { seed: 1, sample_dt: 1e-3 })
+        .controller(
+            BELIEF_MDP,
+            &ControlContext {
+                seed: 1,
+                sample_dt: 1e-3,
+            },
+        )
         .unwrap()
         .err()
         .unwrap();
     assert!(e.contains("stale") && e.contains("sigma"), "{e}");
     assert!(e.contains(&cmd), "{e}");
-    assert!(other.solve_command().contains(" --set inventory.sigma=0.5 "));
-    assert!(other.controller(BELIEF_MDP, &ControlContext { seed: 1, sample_dt: 1e-3 }).unwrap().is_ok());
+    assert!(other
+        .solve_command()
+        .contains(" --set inventory.sigma=0.5 "));
+    assert!(other
+        .controller(
+            BELIEF_MDP,
+            &ControlContext {
+                seed: 1,
+                sample_dt: 1e-3
+            }
+        )
+        .unwrap()
+        .is_ok());
     let _ = std::fs::remove_file(&path);
 }
 
@@ -178,7 +206,13 @@ fn belief_mdp_looks_up_the_nearest_grid_point() {
     let mut ctl = control::BeliefMdp::new(&sys).unwrap();
     let mut g = Gaussian::zeros(STATE);
     let mut u = [0.0];
-    for (m, s) in [(0.2, 0.1), (3.26, 1.13), (7.74, 0.0), (9.9, 4.0), (30.0, 9.0)] {
+    for (m, s) in [
+        (0.2, 0.1),
+        (3.26, 1.13),
+        (7.74, 0.0),
+        (9.9, 4.0),
+        (30.0, 9.0),
+    ] {
         g.mean[0] = m;
         g.set_cov(0, 0, s * s);
         ctl.compute(0.0, &g, &mut u).unwrap();
@@ -234,8 +268,14 @@ fn metrics_compare_with_the_threshold_policy_on_the_same_demands() {
     let r = m.report();
     let n = n as f64;
     assert_eq!(r["periods"], 4000);
-    assert!((r["average_cost"].as_f64().unwrap() - ours / n).abs() < 1e-9, "{r}");
-    assert!((r["full_obs_cost"].as_f64().unwrap() - full / n).abs() < 1e-9, "{r}");
+    assert!(
+        (r["average_cost"].as_f64().unwrap() - ours / n).abs() < 1e-9,
+        "{r}"
+    );
+    assert!(
+        (r["full_obs_cost"].as_f64().unwrap() - full / n).abs() < 1e-9,
+        "{r}"
+    );
     assert_eq!(r["truth_gaps"], 0);
 }
 
