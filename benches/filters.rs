@@ -1,6 +1,8 @@
 //! One filter step (predict to the next sample + update on its measurement)
 //! on the ship, as the filter stage runs it: bootstrap PF with 1000
-//! particles, EKF and UKF, at 1 kHz (Δ = 1 ms) and 100 Hz (Δ = 10 ms).
+//! particles, the projection PF with as many (`projection-pf`: the same
+//! propagation, then a Gaussian projection and redraw every update), EKF
+//! and UKF, at 1 kHz (Δ = 1 ms) and 100 Hz (Δ = 10 ms).
 //!
 //! Criterion measures the step on a pre-recorded ship trajectory; a second
 //! pass prints percentiles of the per-step time over a long run, wall and
@@ -52,7 +54,7 @@ fn prior() -> Gaussian {
 
 type Make = fn(Ship) -> Box<dyn BayesFilter>;
 
-fn backends() -> [(&'static str, Make); 3] {
+fn backends() -> [(&'static str, Make); 4] {
     [
         ("pf1000", |s| {
             let cfg = PfConfig {
@@ -60,6 +62,16 @@ fn backends() -> [(&'static str, Make); 3] {
                 ..PfConfig::default()
             };
             Box::new(Pf::new(s, &cfg, &prior(), 0.0).expect("pf"))
+        }),
+        ("ppf1000", |s| {
+            let cfg = PfConfig {
+                particles: 1000,
+                ..PfConfig::default()
+            };
+            Box::new(
+                beliefbus_projection::SdeProjectionPf::new(s, &cfg, &prior(), 0.0)
+                    .expect("projection pf"),
+            )
         }),
         ("ekf", |s| {
             Box::new(Ekf::new(s, &EkfConfig::default(), &prior(), 0.0).expect("ekf"))

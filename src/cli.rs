@@ -12,12 +12,14 @@
 //! Subcommands: `run` (the launcher; `--sensor external` for external
 //! sensor publishers), `plant` (the simulated plant as an external
 //! publisher), `scenarios` (the registry), `experiment` (paper
-//! reproductions), `latency` and `jitter`, `pomdp solve|simulate`; the hidden `stage NAME` runs one
+//! reproductions), `latency` and `jitter`, `pomdp solve|simulate`, `solve`
+//! (a scenario's offline policy); the hidden `stage NAME` runs one
 //! stage in this process (how the launcher starts the stages of a binary
 //! with its own registry, and its fallback when the stage executables next
 //! to it are missing or from another build).
 
 mod pomdp;
+mod solve;
 
 use crate::config::ConfigSource;
 use crate::scenario::Registry;
@@ -166,6 +168,9 @@ enum Command {
     /// bounds at the start belief, α-vector policy) and `simulate`.
     #[command(subcommand)]
     Pomdp(pomdp::PomdpCommand),
+    /// Solve a scenario's offline part (e.g. the inventory scenario's
+    /// belief-MDP policy table) and write it where its controller looks.
+    Solve(solve::SolveArgs),
 }
 
 /// Run the `beliefbus` command line with the process's arguments and the
@@ -308,6 +313,15 @@ pub fn main_with(registry: Registry) -> i32 {
             return 2;
         }
     }
+    if let Command::Solve(a) = &cli.command {
+        return match solve::run(&registry, a) {
+            Ok(()) => 0,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                1
+            }
+        };
+    }
     if let Command::Scenarios = &cli.command {
         print!("{}", scenarios_table(&registry));
         return 0;
@@ -326,6 +340,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Run { .. }
         | Command::Stage { .. }
         | Command::Plant { .. }
+        | Command::Solve(_)
         | Command::Scenarios => {
             unreachable!("handled in main")
         }

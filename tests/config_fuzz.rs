@@ -223,7 +223,14 @@ fn the_shipped_configs_are_inside_the_hard_limits() {
     for e in std::fs::read_dir(root().join("configs")).unwrap() {
         let p = e.unwrap().path();
         if p.extension().is_some_and(|x| x == "toml") {
-            config::load(&p, &[]).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+            // A controller whose offline policy is not solved here (it is
+            // refused naming `beliefbus solve`) leaves the rest to check.
+            let r =
+                config::load(&p, &[]).or_else(|e| match e.problem.contains("beliefbus solve") {
+                    true => config::load(&p, &["control.backend=none".into()]),
+                    false => Err(e),
+                });
+            r.unwrap_or_else(|e| panic!("{}: {e}", p.display()));
         }
     }
 }

@@ -218,7 +218,7 @@ fn scenarios_lists_the_registry_with_each_ones_backends() {
     assert!(out.contains("vanderpol:"), "{out}");
     assert!(
         out.contains(
-            "filter.backend: chain | pf | ekf | ukf; control.backend: implicit | mppi | none"
+            "filter.backend: chain | pf | ekf | ukf | projection-pf; control.backend: implicit | mppi | none"
         ),
         "{out}"
     );
@@ -228,11 +228,17 @@ fn scenarios_lists_the_registry_with_each_ones_backends() {
         out.contains("filter.backend: rbpf-changepoint; control.backend: arx-adaptive | none"),
         "{out}"
     );
+    assert!(
+        out.contains(
+            "filter.backend: projection-pf; control.backend: belief-mdp | ce-threshold | none"
+        ),
+        "{out}"
+    );
     // An unknown scenario is a config error naming the registered ones.
     let o = run_elsewhere(&["run", "--scenario", "warp", "--duration", "1"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(
-        stderr(&o).contains("registered: ship, vanderpol, arx"),
+        stderr(&o).contains("registered: ship, vanderpol, arx, inventory"),
         "{}",
         stderr(&o)
     );

@@ -36,6 +36,7 @@ pub mod parallel;
 pub mod policy;
 pub mod ppf;
 pub mod rng;
+pub mod sde_pf;
 pub mod solve;
 
 pub use error::ProjectionError;
@@ -45,3 +46,4 @@ pub use grid::{Axis, ParamGrid};
 pub use model::{FilterModel, Pomdp};
 pub use policy::{GridPolicy, PolicyError, PolicyKey};
 pub use ppf::ProjectionPf;
+pub use sde_pf::SdeProjectionPf;

@@ -9,6 +9,8 @@ pub mod arx;
 pub use arx::ArxScenario;
 pub mod carpark;
 pub use carpark::CarparkScenario;
+pub mod inventory;
+pub use inventory::InventoryScenario;
 
 /// The drifting ship of paper 001 eq. (10)–(11) with a control force,
 /// range–bearing sensor, waypoint route.
@@ -207,7 +209,7 @@ mod tests {
         let info = Registry::builtin().describe();
         let ship = info[0].as_ref().unwrap();
         assert_eq!((ship.name, ship.state, ship.control), ("ship", 4, 2));
-        assert_eq!(ship.filters, ["chain", "pf", "ekf", "ukf"]);
+        assert_eq!(ship.filters, ["chain", "pf", "ekf", "ukf", "projection-pf"]);
         assert_eq!(ship.controllers, ["implicit", "mppi", "none"]);
         let vdp = info[1].as_ref().unwrap();
         assert_eq!(vdp.controllers, ["none"]);

@@ -272,6 +272,36 @@ pub trait System: Send + Sync {
     fn run_metrics(&self) -> Option<Box<dyn RunMetrics>> {
         None
     }
+
+    /// Solve the system's offline part (e.g. a POMDP policy its controller
+    /// loads) and write it to `req.out`, or to the place its controller
+    /// looks by default (`beliefbus solve <scenario>`); `None`: the system
+    /// has nothing to solve.
+    fn solve(&self, _req: SolveRequest) -> Option<Result<SolveOutcome, String>> {
+        None
+    }
+}
+
+/// What `beliefbus solve` asks of [`System::solve`].
+pub struct SolveRequest<'a> {
+    /// Where to write the result (`None`: the system's default place).
+    pub out: Option<&'a std::path::Path>,
+    /// Worker threads (0: the machine's parallelism).
+    pub threads: usize,
+    /// One-line progress messages.
+    pub progress: &'a mut dyn FnMut(&str),
+}
+
+/// What [`System::solve`] produced.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SolveOutcome {
+    /// The file written.
+    pub path: std::path::PathBuf,
+    /// Wall time of the solve (s).
+    pub seconds: f64,
+    /// Figures worth printing (name, value), e.g. the solve's stages and
+    /// the policy's lookup time.
+    pub figures: Vec<(String, String)>,
 }
 
 impl std::fmt::Debug for dyn System {

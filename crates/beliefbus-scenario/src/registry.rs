@@ -135,7 +135,8 @@ impl Registry {
             .with::<super::builtin::ShipScenario>()
             .with::<super::builtin::VanDerPolScenario>()
             .with::<super::builtin::ArxScenario>()
-            .with::<super::builtin::CarparkScenario>();
+            .with::<super::builtin::CarparkScenario>()
+            .with::<super::builtin::InventoryScenario>();
         r.builtin_only = true;
         r.default = Some(super::builtin::ShipScenario::NAME);
         r
@@ -224,7 +225,7 @@ pub fn supported_filters(sys: &dyn System) -> Vec<&'static str> {
         if super::full_rank_diffusion(&m, &sys.prior().0) {
             v.push("chain");
         }
-        v.extend(["pf", "ekf", "ukf"]);
+        v.extend(["pf", "ekf", "ukf", "projection-pf"]);
     }
     v.extend(sys.filter_backends());
     v

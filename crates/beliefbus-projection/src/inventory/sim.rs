@@ -28,7 +28,7 @@ pub struct Scenario {
 impl Scenario {
     /// `steps` periods of run `run` of `seed`.
     pub fn new(model: &Inventory, seed: u64, run: u64, steps: usize) -> Self {
-        let mut rng = stream(seed, mix(&[ROLE_ENV, run]));
+        let mut rng = env_rng(seed, run);
         let mut demand = Vec::with_capacity(steps);
         let mut xi = Vec::with_capacity(steps);
         for _ in 0..steps {
@@ -40,12 +40,19 @@ impl Scenario {
 
     /// Overwrite with run `run` of `seed` (same length), reusing buffers.
     pub fn refill(&mut self, model: &Inventory, seed: u64, run: u64) {
-        let mut rng = stream(seed, mix(&[ROLE_ENV, run]));
+        let mut rng = env_rng(seed, run);
         for (d, x) in self.demand.iter_mut().zip(self.xi.iter_mut()) {
             *d = model.sample_demand(&mut rng);
             *x = rng.sample(StandardNormal);
         }
     }
+}
+
+/// The environment stream of run `run`: per period k, the demand u_k then
+/// the standardised noise ξ_k. A live plant drawing from it meets the
+/// demands and noises of the experiment's run.
+pub fn env_rng(seed: u64, run: u64) -> SimRng {
+    stream(seed, mix(&[ROLE_ENV, run]))
 }
 
 /// The filter stream of run `run` (shared by all policies and σ).

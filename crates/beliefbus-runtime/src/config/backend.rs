@@ -14,13 +14,18 @@ pub enum FilterBackend {
     Ukf,
     /// The Markov-chain filter on the refine stage's live snapshots.
     Chain,
+    /// The projection particle filter (paper 004 §IV): the bootstrap PF's
+    /// propagation and weights with `[filter.pf]`'s particles, step and
+    /// seed, then the Gaussian projection and N fresh draws from it after
+    /// every update.
+    ProjectionPf,
     /// A backend the scenario supplies (validated against its list).
     Scenario(String),
 }
 
 impl FilterBackend {
     /// The built-in names, in declaration order.
-    pub const BUILTIN: [&'static str; 4] = ["pf", "ekf", "ukf", "chain"];
+    pub const BUILTIN: [&'static str; 5] = ["pf", "ekf", "ukf", "chain", "projection-pf"];
 
     /// Config and report name (`[filter] backend = "pf"`, ...).
     pub fn name(&self) -> &str {
@@ -29,6 +34,7 @@ impl FilterBackend {
             FilterBackend::Ekf => "ekf",
             FilterBackend::Ukf => "ukf",
             FilterBackend::Chain => "chain",
+            FilterBackend::ProjectionPf => "projection-pf",
             FilterBackend::Scenario(n) => n,
         }
     }
@@ -107,7 +113,7 @@ macro_rules! backend_by_name {
     };
 }
 
-backend_by_name!(FilterBackend, "pf" => Pf, "ekf" => Ekf, "ukf" => Ukf, "chain" => Chain;
-    "Filter backend: `pf`, `ekf`, `ukf`, `chain` (the Markov-chain filter on the refine stage's live snapshots) on an SDE model, or a backend the scenario offers (`beliefbus scenarios` lists them)");
+backend_by_name!(FilterBackend, "pf" => Pf, "ekf" => Ekf, "ukf" => Ukf, "chain" => Chain, "projection-pf" => ProjectionPf;
+    "Filter backend: `pf`, `ekf`, `ukf`, `chain` (the Markov-chain filter on the refine stage's live snapshots), `projection-pf` (the bootstrap PF's propagation with `[filter.pf]`'s particles, step and seed, then a Gaussian projection and resampling from it after every update) on an SDE model, or a backend the scenario offers (`beliefbus scenarios` lists them)");
 backend_by_name!(ControlBackend, "mppi" => Mppi, "implicit" => Implicit, "none" => None;
     "Controller backend: `mppi` (model-predictive path-integral control), `implicit` (path-integral control by implicit sampling, paper 003, `[control.implicit]`) on an SDE model, `none` (the control stage only consumes beliefs), or a controller the scenario offers");

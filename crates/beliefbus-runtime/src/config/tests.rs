@@ -246,6 +246,7 @@ fn backend_names_are_the_serde_names_and_parse_back() {
         FilterBackend::Ekf,
         FilterBackend::Ukf,
         FilterBackend::Chain,
+        FilterBackend::ProjectionPf,
         FilterBackend::Scenario("rbpf-changepoint".into()),
     ] {
         assert_eq!(serde_name(serde_json::to_value(&b).unwrap()), b.name());
@@ -262,7 +263,10 @@ fn backend_names_are_the_serde_names_and_parse_back() {
         assert_eq!(b.name().parse::<ControlBackend>().unwrap(), b);
     }
     // The names users write in configs and read in reports.
-    assert_eq!(FilterBackend::BUILTIN, ["pf", "ekf", "ukf", "chain"]);
+    assert_eq!(
+        FilterBackend::BUILTIN,
+        ["pf", "ekf", "ukf", "chain", "projection-pf"]
+    );
     assert_eq!(ControlBackend::BUILTIN, ["mppi", "implicit", "none"]);
     // Any other name is a scenario's, refused at validation when the
     // scenario does not offer it, naming what it offers.

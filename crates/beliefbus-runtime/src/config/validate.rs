@@ -331,6 +331,10 @@ impl PipelineConfig {
         }
         if let FilterBackend::Scenario(name) = &f.backend {
             self.validate_scenario_filter(name)?;
+        } else if f.backend == FilterBackend::ProjectionPf && dynamics.sde().is_none() {
+            // A discrete-time system supplies the projection PF on its own
+            // model under the same name.
+            self.validate_scenario_filter(f.backend.name())?;
         } else {
             let model = self.sde_for("filter.backend", f.backend.name(), &dynamics)?;
             self.validate_sde_filter(&model)?;
@@ -412,7 +416,9 @@ impl PipelineConfig {
         {
             use crate::filter::build::{check_step, BuildError, StepRule};
             let (key, step, rule) = match f.backend {
-                FilterBackend::Pf => ("filter.pf.max_dt", f.pf.max_dt, StepRule::EulerMaruyama),
+                FilterBackend::Pf | FilterBackend::ProjectionPf => {
+                    ("filter.pf.max_dt", f.pf.max_dt, StepRule::EulerMaruyama)
+                }
                 FilterBackend::Ekf | FilterBackend::Chain => {
                     ("filter.ekf.max_dt", f.ekf.max_dt, StepRule::Rk4)
                 }

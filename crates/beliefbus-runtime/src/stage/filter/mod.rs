@@ -176,25 +176,43 @@ pub fn make_filter_from(
     // Built-in backends need the SDE model (validation refused them on a
     // discrete-time scenario).
     let model = cfg.model();
+    // The scenario's own backend; a discrete-time system supplies
+    // `projection-pf` on its own model under that name.
+    let own = match &cfg.filter.backend {
+        FilterBackend::Scenario(name) => Some(name.as_str()),
+        FilterBackend::ProjectionPf if cfg.system().sde_model().is_none() => Some("projection-pf"),
+        _ => None,
+    };
+    if let Some(name) = own {
+        // On its own stream id ("FILT").
+        let ctx = crate::scenario::FilterContext {
+            seed: crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(0x4649_4C54)),
+            sample_dt: cfg.sample_dt(),
+            start: prior,
+            resumed: prior != cfg.prior(),
+            t0,
+        };
+        return match cfg.system().filter_backend(name, &ctx) {
+            Some(r) => r.map_err(|e| build(&e)),
+            None => Err(build(&format!("the scenario offers no filter {name:?}"))),
+        };
+    }
     Ok(match &cfg.filter.backend {
         FilterBackend::Scenario(name) => {
-            // The scenario's own backend, on its own stream id ("FILT").
-            let ctx = crate::scenario::FilterContext {
-                seed: crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(0x4649_4C54)),
-                sample_dt: cfg.sample_dt(),
-                start: prior,
-                resumed: prior != cfg.prior(),
-                t0,
-            };
-            match cfg.system().filter_backend(name, &ctx) {
-                Some(r) => r.map_err(|e| build(&e))?,
-                None => return Err(build(&format!("the scenario offers no filter {name:?}"))),
-            }
+            return Err(build(&format!("the scenario offers no filter {name:?}")))
         }
         FilterBackend::Pf => {
             let mut pf = cfg.filter.pf.clone();
             pf.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(pf.seed));
             Box::new(Pf::new(model?, &pf, &prior, t0).map_err(|e| build(&e))?)
+        }
+        FilterBackend::ProjectionPf => {
+            let mut pf = cfg.filter.pf.clone();
+            pf.seed = crate::rng::splitmix64(cfg.run.seed ^ crate::rng::splitmix64(pf.seed));
+            Box::new(
+                beliefbus_projection::SdeProjectionPf::new(model?, &pf, &prior, t0)
+                    .map_err(|e| build(&e))?,
+            )
         }
         // The chain backend's fallback until its first snapshot.
         FilterBackend::Ekf | FilterBackend::Chain => {
