@@ -17,7 +17,8 @@
 //! far from the data, F^j can have a second basin at a landmark, where the
 //! bearing is undefined and the Hessian blows up, and Newton may walk into
 //! it), that particle falls back to the motion-model
-//! proposal with the likelihood weight of standard MCL: the proposal is still
+//! proposal with the likelihood weight of standard MCL (times |Σ₁|^{½}, the
+//! constant the implicit weights leave out): the proposal is still
 //! a function of the particle's own past, so the weights stay exact. The
 //! fallbacks are counted.
 
@@ -103,6 +104,15 @@ impl Localizer for ImplicitMcl {
                 }
                 None => {
                     self.fallbacks += 1;
+                    // The implicit weights above leave out the motion
+                    // prior's |Σ₁|^{−½}, common to the implicit particles;
+                    // a fallback's likelihood weight carries no prior term,
+                    // so it takes the same omission, +½ log det Σ₁, to stay
+                    // on their scale.
+                    let log_det_prec = obj.prec.determinant().ln();
+                    if log_det_prec.is_finite() {
+                        *lw -= 0.5 * log_det_prec;
+                    }
                     *x = obj.f + noise.draw(x[2], &xi);
                     for o in obs {
                         *lw -= term_cost(x, map[o.landmark], o, laser);
