@@ -246,3 +246,122 @@ fn quadrotor_chain_vs_ekf_and_pf() {
         );
     }
 }
+
+/// Per coordinate, the mean over rows of a version's numerical diffusion
+/// Var_row[Δξ_a]/Δt (original units) and the time σ_a²/D_a in which it
+/// alone would double the belief's variance of that coordinate (`belief`
+/// in original units).
+fn diffusion_by_coordinate(
+    c: &crate::chain::Chain,
+    scale: &[f64],
+    belief: &Gaussian,
+) -> Vec<(f64, f64)> {
+    let d = c.dim();
+    let mut acc = vec![0.0; d];
+    let mut rows = 0usize;
+    for i in 0..c.len() {
+        let dt = c.holding()[i];
+        if !dt.is_finite() || dt <= 0.0 {
+            continue;
+        }
+        let z = c.state(i);
+        let (cols, probs) = c.row(i);
+        let (mut m1, mut m2) = (vec![0.0; d], vec![0.0; d]);
+        for (&j, &p) in cols.iter().zip(probs) {
+            let zj = c.state(j as usize);
+            for a in 0..d {
+                let da = (zj[a] - z[a]) / scale[a];
+                m1[a] += p * da;
+                m2[a] += p * da * da;
+            }
+        }
+        for a in 0..d {
+            acc[a] += (m2[a] - m1[a] * m1[a]) / dt;
+        }
+        rows += 1;
+    }
+    (0..d)
+        .map(|a| {
+            let da = acc[a] / rows.max(1) as f64;
+            let var = belief.cov_at(a, a);
+            (da, var / da)
+        })
+        .collect()
+}
+
+#[test]
+#[ignore = "measurement: which coordinate a 6-D version diffuses, against the belief"]
+fn quadrotor_numerical_diffusion_by_coordinate() {
+    // The EKF's belief after 3 s of a flight (its covariance is then near
+    // steady state), a moving-frame version of n states around it; per
+    // coordinate the version's numerical diffusion and the time in which it
+    // alone doubles that coordinate's posterior variance, against the
+    // model's σ² on the velocities.
+    let m = PlanarQuadrotor::new(PlanarQuadrotorParams::default()).unwrap();
+    let rec = simulate(&m, 100);
+    let mut ekf = Ekf::new(m.clone(), &EkfConfig::default(), &prior(1.0), 0.0).unwrap();
+    for k in 0..300 {
+        ekf.predict((k + 1) as f64 * DT, &rec.us[k]).unwrap();
+        ekf.update(&Measurement::full(&rec.ys[k])).unwrap();
+    }
+    let b = ekf.belief();
+    let names = ["x", "z", "θ", "vx", "vz", "ω"];
+    let sd: Vec<String> = (0..6)
+        .map(|a| format!("{} {:.4}", names[a], b.cov_at(a, a).sqrt()))
+        .collect();
+    eprintln!("EKF posterior std: {}", sd.join(", "));
+    let corr = |a: usize, c: usize| b.cov_at(a, c) / (b.cov_at(a, a) * b.cov_at(c, c)).sqrt();
+    eprintln!(
+        "EKF correlations: θ–x {:+.2}, θ–vx {:+.2}, θ–ω {:+.2}, x–vx {:+.2}",
+        corr(2, 0),
+        corr(2, 3),
+        corr(2, 5),
+        corr(0, 3)
+    );
+    let sigma2 = m.params.sigma * m.params.sigma;
+    for (n, lambda, advected) in [
+        (5000usize, 1.0, false),
+        (5000, 8.0, false),
+        (5000, 8.0, true),
+        (20000, 8.0, false),
+    ] {
+        let scale = [lambda, lambda, lambda, 1.0, 1.0, 1.0];
+        let sm = ScaledCoords::new(m.clone(), &scale).unwrap();
+        let mut g = b;
+        for a in 0..6 {
+            g.mean_mut()[a] *= scale[a];
+            for c in 0..6 {
+                let v = b.cov_at(a, c) * scale[a] * scale[c];
+                g.set_cov(a, c, v);
+            }
+        }
+        let mut cfg = ChainConfig::moment_matched(6).with_near(NearRule::Knn { c: 4.0 });
+        cfg.control[..2].copy_from_slice(&m.hover());
+        if advected {
+            cfg = cfg.with_step(DT);
+        }
+        let fb = FrameBuild {
+            inflate: 2.0,
+            uniform_fraction: 0.0,
+            min_std_fraction: 0.002,
+            chain: cfg,
+            dt: DT,
+        };
+        let mut rng = crate::rng::stream(5, n as u64);
+        let (c, _) = build_framed(&sm, &g, n, &fb, &mut rng).unwrap();
+        let r = diffusion_by_coordinate(&c, &scale, &b);
+        let row: Vec<String> = (0..6)
+            .map(|a| {
+                if a < 3 {
+                    format!(
+                        "{} D {:.2e} doubles var in {:.3} s",
+                        names[a], r[a].0, r[a].1
+                    )
+                } else {
+                    format!("{} D/σ² {:.2}", names[a], r[a].0 / sigma2)
+                }
+            })
+            .collect();
+        eprintln!("n={n} λ={lambda} advected={advected}: {}", row.join("; "));
+    }
+}

@@ -232,6 +232,20 @@ pub fn encode(chain: &mut super::Chain, delta: f64, meta: SnapshotMeta) -> Vec<u
     out
 }
 
+/// Give the snapshot in `out` (written by [`write`] or [`encode`]) a new
+/// version and lineage: offered again, the same chain is installed afresh
+/// from the filter's Gaussian belief (a new lineage), which re-centres a
+/// moving frame on the belief without building a chain.
+pub fn relabel(out: &mut [u64], meta: SnapshotMeta) -> Result<(), SnapshotError> {
+    if out.len() < HEADER_WORDS || out[0] != MAGIC {
+        return Err(SnapshotError::Shape("not a snapshot"));
+    }
+    out[1] = meta.version;
+    out[2] = meta.lineage;
+    out[7] = meta.t_pub_ns;
+    Ok(())
+}
+
 /// A snapshot read in place.
 #[derive(Clone, Copy, Debug)]
 pub struct SnapshotView<'a> {
