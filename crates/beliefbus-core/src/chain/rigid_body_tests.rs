@@ -4,7 +4,10 @@
 //! a PD controller on the true state. Run with
 //! `cargo test -p beliefbus-core --lib --release rigid_body -- --ignored --nocapture`
 //! (env: RB_SEEDS, RB_N="500,2000,5000", RB_PERIOD steps between versions,
-//! RB_LAMBDA (0: degenerate_scale), RB_KNN, RB_ADVECTED, RB_INFLATE).
+//! RB_LAMBDA (0: degenerate_scale), RB_KNN, RB_ADVECTED, RB_INFLATE,
+//! RB_SS=1 versions around the steady-state covariance, RB_RECENTER steps
+//! between re-installs of the same version). The experiment `degenerate`
+//! is the kept configuration.
 
 use crate::belief::Gaussian;
 use crate::chain::frame::{build_framed, FrameBuild};
@@ -20,6 +23,9 @@ use crate::model::linear::LinearSde;
 use crate::model::planar_quadrotor::{attitude_held, PlanarQuadrotorParams};
 use crate::model::{simulate_observation, Measurement};
 use std::time::Duration;
+
+/// Per method: name, RMSEs, gaps to Kalman, seconds.
+type Row = (String, Vec<f64>, Vec<f64>, Vec<f64>);
 
 const DT: f64 = 0.01;
 const STEPS: usize = 1000;
@@ -232,7 +238,7 @@ fn rigid_body_chain_vs_kalman_and_pf() {
     let period: usize = env("RB_PERIOD", 20);
     let lam_fix: f64 = env("RB_LAMBDA", 0.0);
     let lost = 0.3;
-    let mut rows: Vec<(String, Vec<f64>, Vec<f64>, Vec<f64>)> = vec![];
+    let mut rows: Vec<Row> = vec![];
     let mut push = |name: String, r: f64, g: f64, c: f64| {
         if let Some(row) = rows.iter_mut().find(|x| x.0 == name) {
             row.1.push(r);
