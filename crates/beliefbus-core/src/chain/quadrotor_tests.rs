@@ -4,7 +4,9 @@
 //! only, (x, z) observed at 100 Hz, 10 s flights under a PD controller
 //! acting on the true state (every filter sees the same record and
 //! controls). Run with
-//! `cargo test -p beliefbus-core --lib --release quadrotor -- --ignored --nocapture`.
+//! `cargo test -p beliefbus-core --lib --release quadrotor -- --ignored --nocapture`
+//! (QR_RECENTER=r: one version around the EKF covariance after 3 s,
+//! re-installed every r steps).
 
 use crate::belief::Gaussian;
 use crate::chain::frame::{build_framed, FrameBuild};
@@ -137,17 +139,46 @@ fn chain_run(m: &PlanarQuadrotor, rec: &Record, n: usize, lambda: f64, seed: u64
         let _ = &mut between;
         let mut se = 0.0;
         let c0 = clock_ns();
+        // QR_RECENTER=r: one version, drawn around the EKF's covariance
+        // after 3 s of this flight, re-installed every r steps (the 4-D
+        // `steady` placement).
+        let recenter: usize = std::env::var("QR_RECENTER")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0);
+        let steady = (recenter > 0).then(|| {
+            let mut e = Ekf::new(m.clone(), &EkfConfig::default(), &prior(1.0), 0.0).unwrap();
+            for j in 0..300 {
+                e.predict((j + 1) as f64 * DT, &rec.us[j]).unwrap();
+                e.update(&Measurement::full(&rec.ys[j])).unwrap();
+            }
+            e.belief()
+        });
+        let mut snap: Vec<u64> = vec![];
         for k in 0..STEPS {
-            if k % publish == 0 {
+            let meta = SnapshotMeta {
+                version: k as u64 + 1,
+                lineage: k as u64 + 1,
+                t_pub_ns: 0,
+            };
+            if recenter > 0 && k > 0 && k % recenter == 0 {
+                crate::chain::snapshot::relabel(&mut snap, meta).unwrap();
+                lf_ref.offer(snap.clone()).unwrap();
+                lf_ref.advance(Duration::from_secs(10)).unwrap();
+            } else if (recenter == 0 && k % publish == 0) || k == 0 {
                 let b0 = clock_ns();
-                let g = lf_ref.belief();
+                let mut g = lf_ref.belief();
+                if let Some(st) = &steady {
+                    let sc = [lambda, lambda, lambda, 1.0, 1.0, 1.0];
+                    for a in 0..6 {
+                        for c in 0..6 {
+                            g.set_cov(a, c, st.cov_at(a, c) * sc[a] * sc[c]);
+                        }
+                    }
+                }
                 let (mut c, eq) = build_framed(&sm, &g, n, &fb, &mut rng).unwrap();
-                let meta = SnapshotMeta {
-                    version: k as u64 + 1,
-                    lineage: k as u64 + 1,
-                    t_pub_ns: 0,
-                };
-                lf_ref.offer(encode(&mut c, eq.delta(), meta)).unwrap();
+                snap = encode(&mut c, eq.delta(), meta);
+                lf_ref.offer(snap.clone()).unwrap();
                 built += (clock_ns() - b0) as f64 * 1e-9;
                 lf_ref.advance(Duration::from_secs(10)).unwrap();
             }
