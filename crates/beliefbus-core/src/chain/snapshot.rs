@@ -475,6 +475,30 @@ mod tests {
     }
 
     #[test]
+    fn relabel_changes_only_the_version_lineage_and_time() {
+        let m = ou2();
+        let mut rng = crate::rng::stream(6, 0);
+        let mut c = Chain::new(&m, ChainConfig::moment_matched(2)).unwrap();
+        let mut t = vec![];
+        c.grow(&m, &Sampler::Uniform, 101, &mut rng, &mut t)
+            .unwrap();
+        let meta = |v| SnapshotMeta {
+            version: v,
+            lineage: v + 10,
+            t_pub_ns: v + 20,
+        };
+        let a = encode(&mut c, 0.01, meta(1));
+        let mut b = a.clone();
+        relabel(&mut b, meta(7)).unwrap();
+        let s = SnapshotView::parse(&b).unwrap();
+        assert_eq!((s.version, s.lineage, s.t_pub_ns), (7, 17, 27));
+        let changed: Vec<usize> = (0..a.len()).filter(|&i| a[i] != b[i]).collect();
+        assert_eq!(changed, vec![1, 2, 7]);
+        let mut junk = vec![0u64; 4];
+        assert!(relabel(&mut junk, meta(1)).is_err());
+    }
+
+    #[test]
     fn a_written_snapshot_reads_back_the_chain_and_its_kernel() {
         let m = ou2();
         let mut rng = crate::rng::stream(5, 0);
