@@ -14,6 +14,7 @@ pub mod chain_util;
 pub mod changepoint;
 pub mod convergence;
 pub mod decoding;
+pub mod degenerate;
 pub mod double_slit;
 pub mod himmelblau;
 pub mod inventory;

@@ -5,8 +5,8 @@
 
 use super::{
     anytime, arm, chain_closed_loop, chain_defaults, changepoint, convergence, decoding,
-    double_slit, himmelblau, inventory, localization, param_estimation, ship, ship_control,
-    ship_states, smoothing, vanderpol, Experiment,
+    degenerate, double_slit, himmelblau, inventory, localization, param_estimation, ship,
+    ship_control, ship_states, smoothing, vanderpol, Experiment,
 };
 use beliefbus_core::experiment_params::{p, ParamDoc};
 
@@ -131,6 +131,34 @@ const VANDERPOL: &[ParamDoc] = &[
     p("prior_x2", "0", "prior mean of x2"),
     p("prior_std1", "0.2", "prior standard deviation of x1"),
     p("prior_std2", "0.2", "prior standard deviation of x2"),
+];
+
+const DEGENERATE: &[ParamDoc] = &[
+    p("states", "500,1000,2000,5000", "chain sizes n swept"),
+    p(
+        "particles",
+        "300,1000",
+        "PF sizes; the largest is the CPU reference",
+    ),
+    p(
+        "placement",
+        "steady",
+        "chain versions: steady, rebuild, prior or all",
+    ),
+    p("horizon_s", "10", "length of each flight (s)"),
+    p(
+        "recenter_hz",
+        "20",
+        "steady/prior: rate at which the version is re-installed on the belief",
+    ),
+    p("rebuild_hz", "5", "rebuild: rate of fresh versions"),
+    p("knn_c", "1.5", "neighbour count constant c of k = c log n"),
+    p("inflate", "2", "version states drawn with this × the std"),
+    p(
+        "lost_error",
+        "0.3",
+        "a flight whose position RMSE exceeds this (m) counts as lost",
+    ),
 ];
 
 const SHIP_STATES: &[ParamDoc] = &[
@@ -462,6 +490,10 @@ pub fn all() -> Vec<Experiment> {
             "chain-filter error vs states on the ship, one factor at a time (placement, kernel, step), PF-100 on the same records",
             "paper 001 Fig. 3 (100 states)",
             SHIP_STATES, ship_states::run),
+        e("degenerate",
+            "chain filter vs Kalman/EKF/UKF/PF-300/1000 on a rigid body with noise on the velocities only (attitude-held planar quadrotor)",
+            "none (acceptance of the degenerate-diffusion work; docs/degenerate-chains.md)",
+            DEGENERATE, degenerate::run),
         e("param-estimation",
             "joint state/parameter estimation: chain filter vs PF-100",
             "paper 001 eq. 13",

@@ -54,3 +54,7 @@ mod tests;
 #[cfg(test)]
 #[path = "quadrotor_tests.rs"]
 mod quadrotor;
+
+#[cfg(test)]
+#[path = "rigid_body_tests.rs"]
+mod rigid_body;

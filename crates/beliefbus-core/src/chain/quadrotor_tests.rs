@@ -4,7 +4,9 @@
 //! only, (x, z) observed at 100 Hz, 10 s flights under a PD controller
 //! acting on the true state (every filter sees the same record and
 //! controls). Run with
-//! `cargo test -p beliefbus-core --lib --release quadrotor -- --ignored --nocapture`.
+//! `cargo test -p beliefbus-core --lib --release quadrotor -- --ignored --nocapture`
+//! (QR_RECENTER=r: one version around the EKF covariance after 3 s,
+//! re-installed every r steps).
 
 use crate::belief::Gaussian;
 use crate::chain::frame::{build_framed, FrameBuild};
@@ -137,17 +139,46 @@ fn chain_run(m: &PlanarQuadrotor, rec: &Record, n: usize, lambda: f64, seed: u64
         let _ = &mut between;
         let mut se = 0.0;
         let c0 = clock_ns();
+        // QR_RECENTER=r: one version, drawn around the EKF's covariance
+        // after 3 s of this flight, re-installed every r steps (the 4-D
+        // `steady` placement).
+        let recenter: usize = std::env::var("QR_RECENTER")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0);
+        let steady = (recenter > 0).then(|| {
+            let mut e = Ekf::new(m.clone(), &EkfConfig::default(), &prior(1.0), 0.0).unwrap();
+            for j in 0..300 {
+                e.predict((j + 1) as f64 * DT, &rec.us[j]).unwrap();
+                e.update(&Measurement::full(&rec.ys[j])).unwrap();
+            }
+            e.belief()
+        });
+        let mut snap: Vec<u64> = vec![];
         for k in 0..STEPS {
-            if k % publish == 0 {
+            let meta = SnapshotMeta {
+                version: k as u64 + 1,
+                lineage: k as u64 + 1,
+                t_pub_ns: 0,
+            };
+            if recenter > 0 && k > 0 && k % recenter == 0 {
+                crate::chain::snapshot::relabel(&mut snap, meta).unwrap();
+                lf_ref.offer(snap.clone()).unwrap();
+                lf_ref.advance(Duration::from_secs(10)).unwrap();
+            } else if (recenter == 0 && k % publish == 0) || k == 0 {
                 let b0 = clock_ns();
-                let g = lf_ref.belief();
+                let mut g = lf_ref.belief();
+                if let Some(st) = &steady {
+                    let sc = [lambda, lambda, lambda, 1.0, 1.0, 1.0];
+                    for a in 0..6 {
+                        for c in 0..6 {
+                            g.set_cov(a, c, st.cov_at(a, c) * sc[a] * sc[c]);
+                        }
+                    }
+                }
                 let (mut c, eq) = build_framed(&sm, &g, n, &fb, &mut rng).unwrap();
-                let meta = SnapshotMeta {
-                    version: k as u64 + 1,
-                    lineage: k as u64 + 1,
-                    t_pub_ns: 0,
-                };
-                lf_ref.offer(encode(&mut c, eq.delta(), meta)).unwrap();
+                snap = encode(&mut c, eq.delta(), meta);
+                lf_ref.offer(snap.clone()).unwrap();
                 built += (clock_ns() - b0) as f64 * 1e-9;
                 lf_ref.advance(Duration::from_secs(10)).unwrap();
             }
@@ -244,5 +275,124 @@ fn quadrotor_chain_vs_ekf_and_pf() {
             cpu,
             cpu / pf_cpu
         );
+    }
+}
+
+/// Per coordinate, the mean over rows of a version's numerical diffusion
+/// Var_row[Δξ_a]/Δt (original units) and the time σ_a²/D_a in which it
+/// alone would double the belief's variance of that coordinate (`belief`
+/// in original units).
+fn diffusion_by_coordinate(
+    c: &crate::chain::Chain,
+    scale: &[f64],
+    belief: &Gaussian,
+) -> Vec<(f64, f64)> {
+    let d = c.dim();
+    let mut acc = vec![0.0; d];
+    let mut rows = 0usize;
+    for i in 0..c.len() {
+        let dt = c.holding()[i];
+        if !dt.is_finite() || dt <= 0.0 {
+            continue;
+        }
+        let z = c.state(i);
+        let (cols, probs) = c.row(i);
+        let (mut m1, mut m2) = (vec![0.0; d], vec![0.0; d]);
+        for (&j, &p) in cols.iter().zip(probs) {
+            let zj = c.state(j as usize);
+            for a in 0..d {
+                let da = (zj[a] - z[a]) / scale[a];
+                m1[a] += p * da;
+                m2[a] += p * da * da;
+            }
+        }
+        for a in 0..d {
+            acc[a] += (m2[a] - m1[a] * m1[a]) / dt;
+        }
+        rows += 1;
+    }
+    (0..d)
+        .map(|a| {
+            let da = acc[a] / rows.max(1) as f64;
+            let var = belief.cov_at(a, a);
+            (da, var / da)
+        })
+        .collect()
+}
+
+#[test]
+#[ignore = "measurement: which coordinate a 6-D version diffuses, against the belief"]
+fn quadrotor_numerical_diffusion_by_coordinate() {
+    // The EKF's belief after 3 s of a flight (its covariance is then near
+    // steady state), a moving-frame version of n states around it; per
+    // coordinate the version's numerical diffusion and the time in which it
+    // alone doubles that coordinate's posterior variance, against the
+    // model's σ² on the velocities.
+    let m = PlanarQuadrotor::new(PlanarQuadrotorParams::default()).unwrap();
+    let rec = simulate(&m, 100);
+    let mut ekf = Ekf::new(m.clone(), &EkfConfig::default(), &prior(1.0), 0.0).unwrap();
+    for k in 0..300 {
+        ekf.predict((k + 1) as f64 * DT, &rec.us[k]).unwrap();
+        ekf.update(&Measurement::full(&rec.ys[k])).unwrap();
+    }
+    let b = ekf.belief();
+    let names = ["x", "z", "θ", "vx", "vz", "ω"];
+    let sd: Vec<String> = (0..6)
+        .map(|a| format!("{} {:.4}", names[a], b.cov_at(a, a).sqrt()))
+        .collect();
+    eprintln!("EKF posterior std: {}", sd.join(", "));
+    let corr = |a: usize, c: usize| b.cov_at(a, c) / (b.cov_at(a, a) * b.cov_at(c, c)).sqrt();
+    eprintln!(
+        "EKF correlations: θ–x {:+.2}, θ–vx {:+.2}, θ–ω {:+.2}, x–vx {:+.2}",
+        corr(2, 0),
+        corr(2, 3),
+        corr(2, 5),
+        corr(0, 3)
+    );
+    let sigma2 = m.params.sigma * m.params.sigma;
+    for (n, lambda, advected) in [
+        (5000usize, 1.0, false),
+        (5000, 8.0, false),
+        (5000, 8.0, true),
+        (20000, 8.0, false),
+    ] {
+        let scale = [lambda, lambda, lambda, 1.0, 1.0, 1.0];
+        let sm = ScaledCoords::new(m.clone(), &scale).unwrap();
+        let mut g = b;
+        for a in 0..6 {
+            g.mean_mut()[a] *= scale[a];
+            for c in 0..6 {
+                let v = b.cov_at(a, c) * scale[a] * scale[c];
+                g.set_cov(a, c, v);
+            }
+        }
+        let mut cfg = ChainConfig::moment_matched(6).with_near(NearRule::Knn { c: 4.0 });
+        cfg.control[..2].copy_from_slice(&m.hover());
+        if advected {
+            cfg = cfg.with_step(DT);
+        }
+        let fb = FrameBuild {
+            inflate: 2.0,
+            uniform_fraction: 0.0,
+            min_std_fraction: 0.002,
+            chain: cfg,
+            dt: DT,
+        };
+        let mut rng = crate::rng::stream(5, n as u64);
+        let (c, _) = build_framed(&sm, &g, n, &fb, &mut rng).unwrap();
+        let r = diffusion_by_coordinate(&c, &scale, &b);
+        let row: Vec<String> = (0..6)
+            .map(|a| {
+                if a < 3 {
+                    format!(
+                        "{} D {:.2e} doubles var in {:.3} s",
+                        names[a], r[a].0, r[a].1
+                    )
+                } else {
+                    format!("{} D/σ² {:.2}", names[a], r[a].0 / sigma2)
+                }
+            })
+            .collect();
+        eprintln!("n={n} λ={lambda} advected={advected}: {}", row.join("; "));
     }
 }

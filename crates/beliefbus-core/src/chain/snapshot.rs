@@ -232,6 +232,20 @@ pub fn encode(chain: &mut super::Chain, delta: f64, meta: SnapshotMeta) -> Vec<u
     out
 }
 
+/// Give the snapshot in `out` (written by [`write`] or [`encode`]) a new
+/// version and lineage: offered again, the same chain is installed afresh
+/// from the filter's Gaussian belief (a new lineage), which re-centres a
+/// moving frame on the belief without building a chain.
+pub fn relabel(out: &mut [u64], meta: SnapshotMeta) -> Result<(), SnapshotError> {
+    if out.len() < HEADER_WORDS || out[0] != MAGIC {
+        return Err(SnapshotError::Shape("not a snapshot"));
+    }
+    out[1] = meta.version;
+    out[2] = meta.lineage;
+    out[7] = meta.t_pub_ns;
+    Ok(())
+}
+
 /// A snapshot read in place.
 #[derive(Clone, Copy, Debug)]
 pub struct SnapshotView<'a> {
@@ -458,6 +472,30 @@ mod tests {
             vec![0.2, 0.2],
             Bounds::new_box(&[-2.5, -2.5], &[2.5, 2.5]).unwrap(),
         )
+    }
+
+    #[test]
+    fn relabel_changes_only_the_version_lineage_and_time() {
+        let m = ou2();
+        let mut rng = crate::rng::stream(6, 0);
+        let mut c = Chain::new(&m, ChainConfig::moment_matched(2)).unwrap();
+        let mut t = vec![];
+        c.grow(&m, &Sampler::Uniform, 101, &mut rng, &mut t)
+            .unwrap();
+        let meta = |v| SnapshotMeta {
+            version: v,
+            lineage: v + 10,
+            t_pub_ns: v + 20,
+        };
+        let a = encode(&mut c, 0.01, meta(1));
+        let mut b = a.clone();
+        relabel(&mut b, meta(7)).unwrap();
+        let s = SnapshotView::parse(&b).unwrap();
+        assert_eq!((s.version, s.lineage, s.t_pub_ns), (7, 17, 27));
+        let changed: Vec<usize> = (0..a.len()).filter(|&i| a[i] != b[i]).collect();
+        assert_eq!(changed, vec![1, 2, 7]);
+        let mut junk = vec![0u64; 4];
+        assert!(relabel(&mut junk, meta(1)).is_err());
     }
 
     #[test]

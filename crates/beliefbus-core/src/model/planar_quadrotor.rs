@@ -15,7 +15,9 @@
 //! thrust u₁ = m g) shapes the chain's drift: at u₀ = 0 (free fall) θ
 //! does not act on the velocities at all.
 
+use super::linear::LinearSde;
 use super::{Bounds, Dims, SdeJacobians, SdeModel};
+use nalgebra::DMatrix;
 
 /// Parameters of the planar quadrotor.
 #[derive(Clone, Debug, PartialEq)]
@@ -95,6 +97,46 @@ impl PlanarQuadrotor {
     pub fn hover(&self) -> [f64; 2] {
         [self.params.mass * self.params.gravity, 0.0]
     }
+}
+
+/// The quadrotor with its attitude held by an inner loop: the translational
+/// part (x, z, vx, vz), the control being the net acceleration the held
+/// attitude and thrust produce, a = (−(u₁/m) sin θ, (u₁/m) cos θ − g):
+///
+/// ```text
+/// dx = vx dt,   dvx = a_x dt + σ dw₁
+/// dz = vz dt,   dvz = a_z dt + σ dw₂,     y = (x, z) + N(0, σ_y² I)
+/// ```
+///
+/// Linear-Gaussian, so its Kalman filter is exact; F Fᵀ is singular (zero on
+/// x, z) as for the full model. Bounds: ±`pos_max`, ±`vel_max`.
+pub fn attitude_held(params: &PlanarQuadrotorParams) -> Result<LinearSde, String> {
+    PlanarQuadrotor::new(params.clone())?;
+    let p = params;
+    let a = DMatrix::from_row_slice(
+        4,
+        4,
+        &[
+            0.0, 0.0, 1.0, 0.0, //
+            0.0, 0.0, 0.0, 1.0, //
+            0.0, 0.0, 0.0, 0.0, //
+            0.0, 0.0, 0.0, 0.0,
+        ],
+    );
+    let b = DMatrix::from_row_slice(4, 2, &[0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0]);
+    let f = DMatrix::from_row_slice(4, 2, &[0.0, 0.0, 0.0, 0.0, p.sigma, 0.0, 0.0, p.sigma]);
+    let c = DMatrix::from_row_slice(2, 4, &[1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]);
+    let hi = [p.pos_max, p.pos_max, p.vel_max, p.vel_max];
+    let bounds = Bounds::new_box(&hi.map(|v| -v), &hi).map_err(|e| e.to_string())?;
+    Ok(LinearSde::new(
+        "planar_quadrotor_attitude_held",
+        a,
+        b,
+        f,
+        c,
+        vec![p.obs_std; 2],
+        bounds,
+    ))
 }
 
 impl SdeModel for PlanarQuadrotor {
