@@ -49,6 +49,17 @@ pub struct SolveOptions {
     pub trial_gap_fraction: f64,
     /// Threads for the upper-bound backups (1 = no threads spawned).
     pub threads: usize,
+    /// Extra α-vectors (with their actions) added to the initial lower
+    /// bound, e.g. a previous solution carried to a refined model. Each
+    /// must be the value of a plan of `p` (see
+    /// [`crate::chain_pomdp::warm`]), or the lower bound is no bound.
+    pub initial_lower: Vec<(Vec<f64>, usize)>,
+    /// Posterior masses below this are dropped from the sampled beliefs
+    /// (0 = exact). The lower bound stays a bound (its α-vectors are plan
+    /// values whatever belief selected them); the upper bound at a
+    /// truncated belief is off by at most the dropped mass times the
+    /// reward range over 1 − γ.
+    pub belief_flush: f64,
 }
 
 impl Default for SolveOptions {
@@ -59,6 +70,8 @@ impl Default for SolveOptions {
             report_interval: Duration::from_millis(500),
             trial_gap_fraction: 0.5,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            initial_lower: Vec::new(),
+            belief_flush: 0.0,
         }
     }
 }
@@ -124,8 +137,14 @@ pub fn solve(
     let eps = opts.precision;
     let tol = eps * (1.0 - g) * 1e-2;
     let mut lb = LowerBound::blind(p, tol, 100_000);
+    for (alpha, a) in &opts.initial_lower {
+        if alpha.len() == p.n_states() && *a < p.n_actions() {
+            lb.add(alpha.clone(), *a);
+        }
+    }
     let mut ub = UpperBound::new(p, upper::fib(p, tol, 100_000));
     let mut upd = Updater::new(p);
+    upd.flush = opts.belief_flush;
     let b0 = SparseBelief::from_dense(&p.start);
 
     let mut samples: Vec<SparseBelief> = Vec::new();
