@@ -7,7 +7,7 @@
 //! Δt(z, u) = r(z)² / (κ_F ‖FFᵀ(z)‖₂ + κ_f r(z) ‖f(z, u)‖₂)          (ComputeHoldingTime)
 //! p_u(z_k | z) ∝ N(z_k − z; f(z,u) Δt(z,u), FFᵀ Δt(z,u)),  z_k ∈ Near(z) (ComputeTransProb)
 //! p^δ_u(z | z) = 1 − δ/Δt(z,u),  p^δ_u(z_k | z) = δ/Δt(z,u) p_u(z_k | z) (eq. 3.8–3.9)
-//! T(·|z, u) = (P^δ_u)^K,  h = K δ,   δ = δ_max/2^j ≤ min_{z,u} Δt(z,u)
+//! T(·|z, u) = (P^δ_u)^K,  h = K δ,   δ = min_{z,u} Δt(z,u) or δ_max/2^j below it
 //! Q(o_j | z) ∝ p(y = o_j | z)  normalised over the sampled points     (ComputeObsProb)
 //! R(z, u) = −l(z, u) h,   γ = exp(−ρ h)
 //! ```
@@ -85,7 +85,8 @@ pub struct ChainPomdpSpec {
     pub controls: Vec<Vec<f64>>,
     /// The sampled observation points O (each of the observation dimension).
     pub observations: Vec<Vec<f64>>,
-    /// Upper bound δ_max of the chain step (δ = δ_max/2^j).
+    /// Upper bound δ_max of the chain step (δ = δ_max/2^j); infinite:
+    /// δ = min_{z,u} Δt(z,u) exactly (the thesis's Δt_n).
     pub delta_max: f64,
     /// The decision period h = Kδ is the first power-of-two multiple of δ
     /// at or above this (0: K = 1, the thesis).
@@ -238,7 +239,7 @@ pub fn build<M: SdeModel>(
         )));
     }
     let positive = |x: f64| x > 0.0 && x.is_finite();
-    let ok = positive(spec.delta_max)
+    let ok = (positive(spec.delta_max) || spec.delta_max == f64::INFINITY)
         && positive(spec.discount_rate)
         && spec.decision_min >= 0.0
         && spec.decision_min.is_finite();
@@ -264,6 +265,14 @@ pub fn build<M: SdeModel>(
         .map(rows::ControlKernel::min_holding)
         .fold(f64::INFINITY, f64::min);
     let mut delta = spec.delta_max;
+    if delta.is_infinite() {
+        if !min_dt.is_finite() {
+            return Err(ChainPomdpError::Spec(
+                "every state is absorbing under every control: no time step".into(),
+            ));
+        }
+        delta = min_dt;
+    }
     while min_dt.is_finite() && delta > min_dt {
         delta *= 0.5;
     }

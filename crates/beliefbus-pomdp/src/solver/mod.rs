@@ -142,7 +142,10 @@ pub fn solve(
             lb.add(alpha.clone(), *a);
         }
     }
-    let mut ub = UpperBound::new(p, upper::fib(p, tol, 100_000));
+    // FIB may take at most a quarter of the budget (it is O(|A|²) per
+    // state and observation; stopping early keeps it an upper bound).
+    let fib_deadline = opts.time_limit.map(|l| t0 + l / 4);
+    let mut ub = UpperBound::new(p, upper::fib_until(p, tol, 100_000, fib_deadline));
     let mut upd = Updater::new(p);
     upd.flush = opts.belief_flush;
     let b0 = SparseBelief::from_dense(&p.start);
