@@ -188,6 +188,7 @@ fn solve_opts(secs: f64, initial: Vec<(Vec<f64>, usize)>) -> SolveOptions {
         threads: 1,
         initial_lower: initial,
         belief_flush: 1e-7,
+        prune_lower: false,
         ..Default::default()
     }
 }

@@ -323,6 +323,7 @@ pub fn refine(
             threads: 1,
             initial_lower: initial,
             belief_flush: 1e-7,
+            prune_lower: false,
             ..Default::default()
         };
         let t1 = std::time::Instant::now();

@@ -60,6 +60,12 @@ pub struct SolveOptions {
     /// truncated belief is off by at most the dropped mass times the
     /// reward range over 1 − γ.
     pub belief_flush: f64,
+    /// Prune the lower bound by the sampled beliefs. Pruning keeps V̲(b₀)
+    /// but can drop the vector a kept plan continues with at a branch
+    /// belief that was never sampled; the greedy policy then no longer
+    /// attains V̲ (seen on the light-dark chains: it stays in the light
+    /// for ever). `false` keeps every non-dominated vector.
+    pub prune_lower: bool,
 }
 
 impl Default for SolveOptions {
@@ -72,6 +78,7 @@ impl Default for SolveOptions {
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             initial_lower: Vec::new(),
             belief_flush: 0.0,
+            prune_lower: true,
         }
     }
 }
@@ -213,14 +220,16 @@ pub fn solve(
             }
         }
         trials += 1;
-        if lb.vectors.len() > 2 * pruned_at {
+        if opts.prune_lower && lb.vectors.len() > 2 * pruned_at {
             lb.prune(samples.iter().chain(std::iter::once(&b0)));
             pruned_at = lb.vectors.len().max(16);
         }
         converged = ub.value(&b0) - lb.value(&b0) <= eps;
         report(&mut lb, &mut ub, trials, false);
     }
-    lb.prune(samples.iter().chain(std::iter::once(&b0)));
+    if opts.prune_lower {
+        lb.prune(samples.iter().chain(std::iter::once(&b0)));
+    }
     report(&mut lb, &mut ub, trials, true);
     Ok(Solution {
         lower: lb.value(&b0),
