@@ -21,6 +21,8 @@ pub mod inventory;
 pub mod localization;
 pub mod param_estimation;
 pub mod pi_common;
+pub mod pomdp_light_dark;
+pub mod pomdp_lqg;
 pub mod refine_sim;
 pub mod registry;
 pub mod report;

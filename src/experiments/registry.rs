@@ -8,6 +8,7 @@ use super::{
     degenerate, double_slit, himmelblau, inventory, localization, param_estimation, ship,
     ship_control, ship_states, smoothing, vanderpol, Experiment,
 };
+use super::{pomdp_light_dark, pomdp_lqg};
 use beliefbus_core::experiment_params::{p, ParamDoc};
 
 const CONFIG: ParamDoc = p(
@@ -464,6 +465,63 @@ const SHIP_CONTROL: &[ParamDoc] = &[
     ),
 ];
 
+const POMDP_LQG: &[ParamDoc] = &[
+    p(
+        "states",
+        "20,40,80,160,320,640,1280",
+        "chain sizes n of the refinement sequence",
+    ),
+    p("solve_s", "20", "solver time per size (s)"),
+    p(
+        "alpha",
+        "0.05",
+        "discount rate alpha of the cost e^(-2 alpha t)(x^2+u^2) (1/s)",
+    ),
+    p(
+        "decision_s",
+        "0.1",
+        "shortest decision period h (s); h is a power-of-two multiple of the chain step",
+    ),
+    p("horizon_s", "40", "closed-loop runs are truncated here (s)"),
+    p(
+        "substeps",
+        "10",
+        "Euler-Maruyama substeps per decision period",
+    ),
+];
+
+const POMDP_LIGHT_DARK: &[ParamDoc] = &[
+    p("states", "75,150,300,600", "2-D chain sizes n"),
+    p("solve_s", "60", "solver time per 2-D size (s)"),
+    p(
+        "anytime_s",
+        "5,15,30,60",
+        "solver budgets of the anytime curve at anytime_states (s)",
+    ),
+    p(
+        "anytime_states",
+        "150",
+        "2-D chain size of the anytime curve",
+    ),
+    p("solve_1d_s", "10", "solver time of the 1-D problem (s)"),
+    p("noise", "0.1", "diffusion sigma of dx = u dt + sigma dw"),
+    p(
+        "epsilon",
+        "0.1",
+        "observation sigma in the light (1/epsilon in the dark)",
+    ),
+    p(
+        "rate",
+        "0.1",
+        "discount rate rho, gamma = exp(-rho h) (1/s)",
+    ),
+    p(
+        "plot",
+        "(none)",
+        "write the 1-D belief trajectory to this SVG file",
+    ),
+];
+
 /// Every experiment, in the order `beliefbus experiment --list` shows them.
 pub fn all() -> Vec<Experiment> {
     let e = |name, about, reproduces, params, run| Experiment {
@@ -538,6 +596,14 @@ pub fn all() -> Vec<Experiment> {
             "inventory control, discounted cost over 1000 runs of horizon 40 per sigma: projected-belief MDP vs CE / CE-MLE / greedy",
             "paper 004 Table II",
             beliefbus_projection::experiments::inventory::PARAMS, inventory::run_discounted),
+        e("pomdp-lqg",
+            "scalar LQG as a sequence of chain POMDPs (Alg. 4.4) solved by our point-based solver, closed-loop cost vs states and the Riccati optimum",
+            "thesis (000) Fig. 4-4",
+            POMDP_LQG, pomdp_lqg::run),
+        e("pomdp-light-dark",
+            "light-dark 1-D (belief trajectory) and 2-D (reward vs states, anytime curve) as chain POMDPs",
+            "thesis (000) Figs. 4-6, 4-7, 4-8",
+            POMDP_LIGHT_DARK, pomdp_light_dark::run),
         e("ship-control",
             "closed-loop ship: implicit path-integral control vs MPPI-2048/512, cost and compute per control",
             "paper 003 sec. 3 (ship), no table: cost and compute per control",

@@ -67,6 +67,8 @@ pub struct Branch {
 
 /// Reusable buffers for [`Updater::successors`].
 pub struct Updater {
+    /// Posterior masses below this are dropped (0: exact update).
+    pub flush: f64,
     acc: Vec<f64>,
     touched: Vec<u32>,
     buckets: Vec<SparseBelief>,
@@ -75,6 +77,7 @@ pub struct Updater {
 impl Updater {
     pub fn new(p: &Pomdp) -> Self {
         Updater {
+            flush: 0.0,
             acc: vec![0.0; p.n_states()],
             touched: Vec::new(),
             buckets: vec![SparseBelief::default(); p.n_obs()],
@@ -129,6 +132,9 @@ impl Updater {
             let mut belief = std::mem::take(bk);
             if prob > 0.0 {
                 belief.val.iter_mut().for_each(|v| *v /= prob);
+                if self.flush > 0.0 {
+                    flush_small(&mut belief, self.flush);
+                }
                 out.push(Branch {
                     obs: o as u32,
                     prob,
@@ -138,4 +144,23 @@ impl Updater {
         }
         out
     }
+}
+
+/// Drops masses below `eps` and renormalises (the largest mass is kept, so
+/// the belief never empties).
+fn flush_small(b: &mut SparseBelief, eps: f64) {
+    let max = b.val.iter().copied().fold(0.0, f64::max);
+    let mut k = 0;
+    let mut total = 0.0;
+    for j in 0..b.idx.len() {
+        if b.val[j] >= eps || b.val[j] == max {
+            b.idx[k] = b.idx[j];
+            b.val[k] = b.val[j];
+            total += b.val[j];
+            k += 1;
+        }
+    }
+    b.idx.truncate(k);
+    b.val.truncate(k);
+    b.val.iter_mut().for_each(|v| *v /= total);
 }

@@ -8,6 +8,7 @@
 //! [`solve`] as one read from a file.
 
 pub mod belief;
+pub mod chain_pomdp;
 pub mod model;
 pub mod parse;
 pub mod policy;

@@ -49,6 +49,23 @@ pub struct SolveOptions {
     pub trial_gap_fraction: f64,
     /// Threads for the upper-bound backups (1 = no threads spawned).
     pub threads: usize,
+    /// Extra α-vectors (with their actions) added to the initial lower
+    /// bound, e.g. a previous solution carried to a refined model. Each
+    /// must be the value of a plan of `p` (see
+    /// [`crate::chain_pomdp::warm`]), or the lower bound is no bound.
+    pub initial_lower: Vec<(Vec<f64>, usize)>,
+    /// Posterior masses below this are dropped from the sampled beliefs
+    /// (0 = exact). The lower bound stays a bound (its α-vectors are plan
+    /// values whatever belief selected them); the upper bound at a
+    /// truncated belief is off by at most the dropped mass times the
+    /// reward range over 1 − γ.
+    pub belief_flush: f64,
+    /// Prune the lower bound by the sampled beliefs. Pruning keeps V̲(b₀)
+    /// but can drop the vector a kept plan continues with at a branch
+    /// belief that was never sampled; the greedy policy then no longer
+    /// attains V̲ (seen on the light-dark chains: it stays in the light
+    /// for ever). `false` keeps every non-dominated vector.
+    pub prune_lower: bool,
 }
 
 impl Default for SolveOptions {
@@ -59,6 +76,9 @@ impl Default for SolveOptions {
             report_interval: Duration::from_millis(500),
             trial_gap_fraction: 0.5,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            initial_lower: Vec::new(),
+            belief_flush: 0.0,
+            prune_lower: true,
         }
     }
 }
@@ -124,8 +144,17 @@ pub fn solve(
     let eps = opts.precision;
     let tol = eps * (1.0 - g) * 1e-2;
     let mut lb = LowerBound::blind(p, tol, 100_000);
-    let mut ub = UpperBound::new(p, upper::fib(p, tol, 100_000));
+    for (alpha, a) in &opts.initial_lower {
+        if alpha.len() == p.n_states() && *a < p.n_actions() {
+            lb.add(alpha.clone(), *a);
+        }
+    }
+    // FIB may take at most a quarter of the budget (it is O(|A|²) per
+    // state and observation; stopping early keeps it an upper bound).
+    let fib_deadline = opts.time_limit.map(|l| t0 + l / 4);
+    let mut ub = UpperBound::new(p, upper::fib_until(p, tol, 100_000, fib_deadline));
     let mut upd = Updater::new(p);
+    upd.flush = opts.belief_flush;
     let b0 = SparseBelief::from_dense(&p.start);
 
     let mut samples: Vec<SparseBelief> = Vec::new();
@@ -191,14 +220,16 @@ pub fn solve(
             }
         }
         trials += 1;
-        if lb.vectors.len() > 2 * pruned_at {
+        if opts.prune_lower && lb.vectors.len() > 2 * pruned_at {
             lb.prune(samples.iter().chain(std::iter::once(&b0)));
             pruned_at = lb.vectors.len().max(16);
         }
         converged = ub.value(&b0) - lb.value(&b0) <= eps;
         report(&mut lb, &mut ub, trials, false);
     }
-    lb.prune(samples.iter().chain(std::iter::once(&b0)));
+    if opts.prune_lower {
+        lb.prune(samples.iter().chain(std::iter::once(&b0)));
+    }
     report(&mut lb, &mut ub, trials, true);
     Ok(Solution {
         lower: lb.value(&b0),

@@ -39,6 +39,18 @@ pub struct UpperBound {
 /// The FIB Q-values, iterated until the remaining error bound
 /// `γ/(1−γ)·change` is below `tol` or `max_iter` sweeps.
 pub fn fib(p: &Pomdp, tol: f64, max_iter: usize) -> Vec<Vec<f64>> {
+    fib_until(p, tol, max_iter, None)
+}
+
+/// [`fib`] stopped at `deadline` too: the iteration starts above the fixed
+/// point and the FIB operator is monotone, so every iterate is an upper
+/// bound and stopping early only loosens it.
+pub fn fib_until(
+    p: &Pomdp,
+    tol: f64,
+    max_iter: usize,
+    deadline: Option<std::time::Instant>,
+) -> Vec<Vec<f64>> {
     let (_, hi) = p.reward_range();
     let g = p.discount;
     let (ns, na, no) = (p.n_states(), p.n_actions(), p.n_obs());
@@ -80,7 +92,8 @@ pub fn fib(p: &Pomdp, tol: f64, max_iter: usize) -> Vec<Vec<f64>> {
             }
         }
         std::mem::swap(&mut q, &mut next);
-        if g / (1.0 - g) * change < tol {
+        if g / (1.0 - g) * change < tol || deadline.is_some_and(|d| std::time::Instant::now() >= d)
+        {
             break;
         }
     }
