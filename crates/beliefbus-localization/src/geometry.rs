@@ -39,6 +39,19 @@ pub fn laser_point(xc: f64, yc: f64, beta: f64, a: f64, b: f64) -> [f64; 2] {
     [xc + a * c - b * s, yc + a * s + b * c]
 }
 
+/// The weighted mean of poses: positions averaged, heading by the mean of
+/// (cos β, sin β) (weights summing to 1).
+pub fn mean_pose(x: &[Pose], w: &[f64]) -> Pose {
+    let (mut px, mut py, mut c, mut s) = (0.0, 0.0, 0.0, 0.0);
+    for (p, &w) in x.iter().zip(w) {
+        px += w * p[0];
+        py += w * p[1];
+        c += w * p[2].cos();
+        s += w * p[2].sin();
+    }
+    Pose::new(px, py, s.atan2(c))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -112,14 +112,7 @@ impl ParticleSet {
     /// The weighted mean: positions averaged, heading by the mean of
     /// (cos β, sin β).
     pub fn estimate(&self) -> Pose {
-        let (mut x, mut y, mut c, mut s) = (0.0, 0.0, 0.0, 0.0);
-        for (p, &w) in self.x.iter().zip(&self.w) {
-            x += w * p[0];
-            y += w * p[1];
-            c += w * p[2].cos();
-            s += w * p[2].sin();
-        }
-        Pose::new(x, y, s.atan2(c))
+        crate::geometry::mean_pose(&self.x, &self.w)
     }
 
     /// Mean ESS/M over the reweightings so far (NaN before the first).

@@ -138,11 +138,7 @@ impl SlamFilter for FastSlam {
         let step = self.step;
         let (ute, noise) = self.model.step_noise(u, dt)?;
         if obs.is_empty() {
-            for x in self.set.x.iter_mut() {
-                let xi = normal3(rng);
-                *x = ute.predict_mean(x, u) + noise.draw(x[2], &xi);
-            }
-            return Ok(self.set.estimate());
+            return Ok(self.set.predict_only(&ute, &noise, u, rng));
         }
         self.stats.updates += 1;
         let model = self.model;
@@ -241,11 +237,7 @@ impl SlamFilter for FastSlam {
     }
 
     fn stats(&self) -> SlamStats {
-        SlamStats {
-            resamplings: self.set.resamplings,
-            ess_fraction_sum: self.set.ess_fraction_sum,
-            ..self.stats
-        }
+        self.set.stats_with(self.stats)
     }
 }
 

@@ -109,14 +109,32 @@ impl<L: Clone> SlamParticles<L> {
 
     /// Weighted mean pose (circular mean of the heading).
     pub fn estimate(&self) -> Pose {
-        let (mut x, mut y, mut c, mut s) = (0.0, 0.0, 0.0, 0.0);
-        for (p, &w) in self.x.iter().zip(&self.w) {
-            x += w * p[0];
-            y += w * p[1];
-            c += w * p[2].cos();
-            s += w * p[2].sin();
+        crate::geometry::mean_pose(&self.x, &self.w)
+    }
+
+    /// A step without laser returns: every pose moved by the motion model
+    /// (the prior is the proposal; the weights do not change).
+    pub fn predict_only(
+        &mut self,
+        ute: &crate::vehicle::Ute,
+        noise: &crate::vehicle::StepNoise,
+        u: crate::vehicle::Control,
+        rng: &mut SimRng,
+    ) -> Pose {
+        for x in self.x.iter_mut() {
+            let xi = crate::carpark::normal3(rng);
+            *x = ute.predict_mean(x, u) + noise.draw(x[2], &xi);
         }
-        Pose::new(x, y, s.atan2(c))
+        self.estimate()
+    }
+
+    /// `stats` with this set's resampling figures filled in.
+    pub fn stats_with(&self, stats: super::SlamStats) -> super::SlamStats {
+        super::SlamStats {
+            resamplings: self.resamplings,
+            ess_fraction_sum: self.ess_fraction_sum,
+            ..stats
+        }
     }
 
     /// Index of the heaviest particle.
