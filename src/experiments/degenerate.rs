@@ -51,6 +51,36 @@ use crate::model::{simulate_observation, Measurement};
 use crate::rng::stream;
 use crate::rt::clock::thread_cpu_ns;
 
+use beliefbus_core::experiment_params::{p, ParamDoc};
+
+pub const PARAMS: &[ParamDoc] = &[
+    p("states", "500,1000,2000,5000", "chain sizes n swept"),
+    p(
+        "particles",
+        "300,1000",
+        "PF sizes; the largest is the CPU reference",
+    ),
+    p(
+        "placement",
+        "steady",
+        "chain versions: steady, rebuild, prior or all",
+    ),
+    p("horizon_s", "10", "length of each flight (s)"),
+    p(
+        "recenter_hz",
+        "20",
+        "steady/prior: rate at which the version is re-installed on the belief",
+    ),
+    p("rebuild_hz", "5", "rebuild: rate of fresh versions"),
+    p("knn_c", "1.5", "neighbour count constant c of k = c log n"),
+    p("inflate", "2", "version states drawn with this × the std"),
+    p(
+        "lost_error",
+        "0.3",
+        "a flight whose position RMSE exceeds this (m) counts as lost",
+    ),
+];
+
 /// One flight: truth, measurements and the controls applied.
 struct Record {
     truth: Vec<[f64; 4]>,

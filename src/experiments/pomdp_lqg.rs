@@ -50,6 +50,33 @@ use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;
 use std::time::Duration;
 
+use beliefbus_core::experiment_params::{p, ParamDoc};
+
+pub const PARAMS: &[ParamDoc] = &[
+    p(
+        "states",
+        "20,40,80,160,320,640,1280",
+        "chain sizes n of the refinement sequence",
+    ),
+    p("solve_s", "20", "solver time per size (s)"),
+    p(
+        "alpha",
+        "0.05",
+        "discount rate alpha of the cost e^(-2 alpha t)(x^2+u^2) (1/s)",
+    ),
+    p(
+        "decision_s",
+        "0.1",
+        "shortest decision period h (s); h is a power-of-two multiple of the chain step",
+    ),
+    p("horizon_s", "40", "closed-loop runs are truncated here (s)"),
+    p(
+        "substeps",
+        "10",
+        "Euler-Maruyama substeps per decision period",
+    ),
+];
+
 /// Thesis Fig. 4-4: states, Δt (s), cost, 95 % half-width.
 pub const PAPER: [(usize, f64, f64, f64); 4] = [
     (20, 0.398, -0.406, 0.016),

@@ -134,34 +134,6 @@ const VANDERPOL: &[ParamDoc] = &[
     p("prior_std2", "0.2", "prior standard deviation of x2"),
 ];
 
-const DEGENERATE: &[ParamDoc] = &[
-    p("states", "500,1000,2000,5000", "chain sizes n swept"),
-    p(
-        "particles",
-        "300,1000",
-        "PF sizes; the largest is the CPU reference",
-    ),
-    p(
-        "placement",
-        "steady",
-        "chain versions: steady, rebuild, prior or all",
-    ),
-    p("horizon_s", "10", "length of each flight (s)"),
-    p(
-        "recenter_hz",
-        "20",
-        "steady/prior: rate at which the version is re-installed on the belief",
-    ),
-    p("rebuild_hz", "5", "rebuild: rate of fresh versions"),
-    p("knn_c", "1.5", "neighbour count constant c of k = c log n"),
-    p("inflate", "2", "version states drawn with this × the std"),
-    p(
-        "lost_error",
-        "0.3",
-        "a flight whose position RMSE exceeds this (m) counts as lost",
-    ),
-];
-
 const SHIP_STATES: &[ParamDoc] = &[
     p(
         "placement",
@@ -465,31 +437,6 @@ const SHIP_CONTROL: &[ParamDoc] = &[
     ),
 ];
 
-const POMDP_LQG: &[ParamDoc] = &[
-    p(
-        "states",
-        "20,40,80,160,320,640,1280",
-        "chain sizes n of the refinement sequence",
-    ),
-    p("solve_s", "20", "solver time per size (s)"),
-    p(
-        "alpha",
-        "0.05",
-        "discount rate alpha of the cost e^(-2 alpha t)(x^2+u^2) (1/s)",
-    ),
-    p(
-        "decision_s",
-        "0.1",
-        "shortest decision period h (s); h is a power-of-two multiple of the chain step",
-    ),
-    p("horizon_s", "40", "closed-loop runs are truncated here (s)"),
-    p(
-        "substeps",
-        "10",
-        "Euler-Maruyama substeps per decision period",
-    ),
-];
-
 const POMDP_LIGHT_DARK: &[ParamDoc] = &[
     p("states", "75,150,300,600", "2-D chain sizes n"),
     p("solve_s", "60", "solver time per 2-D size (s)"),
@@ -551,7 +498,7 @@ pub fn all() -> Vec<Experiment> {
         e("degenerate",
             "chain filter vs Kalman/EKF/UKF/PF-300/1000 on a rigid body with noise on the velocities only (attitude-held planar quadrotor)",
             "none (acceptance of the degenerate-diffusion work; docs/degenerate-chains.md)",
-            DEGENERATE, degenerate::run),
+            degenerate::PARAMS, degenerate::run),
         e("param-estimation",
             "joint state/parameter estimation: chain filter vs PF-100",
             "paper 001 eq. 13",
@@ -599,7 +546,7 @@ pub fn all() -> Vec<Experiment> {
         e("pomdp-lqg",
             "scalar LQG as a sequence of chain POMDPs (Alg. 4.4) solved by our point-based solver, closed-loop cost vs states and the Riccati optimum",
             "thesis (000) Fig. 4-4",
-            POMDP_LQG, pomdp_lqg::run),
+            pomdp_lqg::PARAMS, pomdp_lqg::run),
         e("pomdp-light-dark",
             "light-dark 1-D (belief trajectory) and 2-D (reward vs states, anytime curve) as chain POMDPs",
             "thesis (000) Figs. 4-6, 4-7, 4-8",
@@ -618,30 +565,5 @@ pub fn all() -> Vec<Experiment> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Every experiment says what it reproduces, and no key is listed
-    /// twice (a second row would shadow the first in `--help`).
-    #[test]
-    fn every_entry_is_documented_once() {
-        let all = all();
-        assert_eq!(all.len(), 28, "the registry lost or gained an entry");
-        for e in &all {
-            assert!(
-                !e.reproduces.is_empty() && !e.about.is_empty(),
-                "{}",
-                e.name
-            );
-            for (i, d) in e.params.iter().enumerate() {
-                assert!(!d.help.is_empty(), "{}: {}", e.name, d.key);
-                assert!(
-                    e.params[i + 1..].iter().all(|o| o.key != d.key),
-                    "{}: {} twice",
-                    e.name,
-                    d.key
-                );
-            }
-        }
-    }
-}
+#[path = "registry_tests.rs"]
+mod tests;

@@ -5,6 +5,7 @@
 pub mod mcl;
 pub mod params;
 pub mod slam;
+pub mod slam_plot;
 pub mod slam_svg;
 pub mod slam_victoria;
 pub mod slam_vp_data;
