@@ -109,7 +109,8 @@ impl Backend {
         }
     }
 
-    fn controller(&mut self) -> &mut dyn Controller {
+    /// The controller behind it.
+    pub fn controller(&mut self) -> &mut dyn Controller {
         match self {
             Backend::Mppi(m) => m.as_mut(),
             Backend::Implicit(c) => c.as_mut(),
@@ -118,7 +119,7 @@ impl Backend {
     }
 
     /// Work for the next call that does not depend on its belief.
-    fn prepare(&mut self) {
+    pub fn prepare(&mut self) {
         match self {
             Backend::Mppi(m) => m.prepare(),
             Backend::Implicit(_) => {}
@@ -129,7 +130,7 @@ impl Backend {
     /// Weight w of the control term w‖u‖² in the closed-loop cost: the
     /// backend's own (MPPI's `control_weight`; ½R for the path-integral
     /// controller's ½uᵀRu).
-    fn control_weight(&self) -> f64 {
+    pub fn control_weight(&self) -> f64 {
         match self {
             Backend::Mppi(m) => m.config().control_weight,
             Backend::Implicit(c) => 0.5 * c.config().control_cost,

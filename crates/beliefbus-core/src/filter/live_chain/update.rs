@@ -105,7 +105,13 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
         let inv = 1.0 / sum;
         let thr = FLUSH.max(self.flush_rel * tmax * inv);
         let centre = &self.last.mean[..d];
-        let (acc, s2, heaviest) = flush_pass(&view, &self.tmp, &mut self.phi, centre, thr, inv);
+        let (tmp, phi) = (&self.tmp, &mut self.phi);
+        let (acc, s2, heaviest) = match d {
+            2 => flush_pass::<2>(&view, tmp, phi, centre, thr, inv),
+            3 => flush_pass::<3>(&view, tmp, phi, centre, thr, inv),
+            4 => flush_pass::<4>(&view, tmp, phi, centre, thr, inv),
+            _ => flush_pass::<0>(&view, tmp, phi, centre, thr, inv),
+        };
         let mut g = acc.gaussian();
         if 1.0 / s2 < self.reanchor_ess {
             if let Some(h) = self.reanchor_gaussian(&view, &g, heaviest) {
@@ -244,8 +250,9 @@ impl<M: SdeModel, S: AsRef<[u64]>> LiveChainFilter<M, S> {
 
 /// The posterior φ = tmp·inv with masses below `thr` flushed to zero, and
 /// in the same pass its moments (centred at `centre`), Σφ² and the
-/// heaviest state.
-fn flush_pass(
+/// heaviest state. `D` is the state dimension when known at compile time
+/// (0: read at run time); the sums are the same either way.
+fn flush_pass<const D: usize>(
     view: &SnapshotView,
     tmp: &[f64],
     phi: &mut [f64],
@@ -262,7 +269,11 @@ fn flush_pass(
             w = 0.0;
         } else {
             s2 += w * w;
-            acc.add(w, view.state(z));
+            if D == 0 {
+                acc.add(w, view.state(z));
+            } else {
+                acc.add_fixed::<D>(w, view.state(z));
+            }
             if w > heaviest.0 {
                 heaviest = (w, z);
             }
