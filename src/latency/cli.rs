@@ -307,12 +307,21 @@ pub fn pipeline_config(
         .map_err(|e| LatencyError::BadArg(e.to_string()))?;
     let exe = std::env::current_exe()
         .map_err(|e| LatencyError::Spawn(format!("cannot find this executable: {e}")))?;
+    let warm_cores = if pcfg.run.keep_cores_warm {
+        crate::ipc::StageKind::ALL
+            .iter()
+            .filter_map(|&k| pcfg.stages.get(k).core)
+            .collect()
+    } else {
+        vec![]
+    };
     Ok(Some((
         PipelineJitterConfig {
             exe,
             config: a.config.clone(),
             sets,
             duration: duration(a.duration)?,
+            warm_cores,
         },
         pcfg.plant.sensor_rate_hz,
     )))
@@ -350,7 +359,25 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
     );
     let load0 = LoadSample::now();
     let stress = Stress::start(a.stress, a.stress);
+    // The baseline sees the machine as the pipeline will: with the
+    // config's idle-class spinners when it keeps its cores warm.
+    let warm = match &pipe {
+        Some((p, _)) if !p.warm_cores.is_empty() => {
+            eprintln!(
+                "timer baseline with cores {:?} kept warm (run.keep_cores_warm)",
+                {
+                    let mut c = p.warm_cores.clone();
+                    c.sort_unstable();
+                    c.dedup();
+                    c
+                }
+            );
+            Some(crate::rt::KeepWarm::start(&p.warm_cores))
+        }
+        _ => None,
+    };
     let cores = timer_baseline(&cfg, stop)?;
+    drop(warm);
     let measured = match &pipe {
         Some((p, _)) if !stop.load(std::sync::atomic::Ordering::Relaxed) => {
             eprintln!("pipeline: starting beliefbus run ...");

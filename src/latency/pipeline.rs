@@ -40,6 +40,9 @@ pub struct PipelineJitterConfig {
     pub sets: Vec<String>,
     /// Measured time after the warm-up.
     pub duration: Duration,
+    /// The config keeps its stages' cores warm (`run.keep_cores_warm`):
+    /// these cores; the timer baseline then runs with the same spinners.
+    pub warm_cores: Vec<usize>,
 }
 
 /// One stage's figures, from the run report.

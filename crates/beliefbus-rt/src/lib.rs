@@ -2,15 +2,18 @@
 //! allocation-free latency/compute histograms, per-stage budgets and
 //! deadline-miss accounting, core affinity, scheduling priority and memory
 //! locking (each with a one-line warning and a fallback when not permitted),
+//! idle-class spinners that keep the pipeline's cores awake (`keep_warm`),
 //! and the rules for every file a run writes (`files`).
 
 pub mod budget;
 pub mod clock;
 pub mod files;
 pub mod hist;
+pub mod keep_warm;
 pub mod sched;
 
 pub use budget::Budget;
 pub use clock::{Clock, MonotonicClock, SimClock};
 pub use hist::LatencyHist;
+pub use keep_warm::KeepWarm;
 pub use sched::{apply as apply_rt, RtApplied, RtSettings};

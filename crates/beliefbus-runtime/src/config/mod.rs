@@ -146,6 +146,13 @@ pub struct RunConfig {
     /// Period of the stages' statistics reports.
     #[serde(default = "one_f")]
     pub stats_period_s: f64,
+    /// Keep the stages' cores out of idle for the run: one spinner per
+    /// core at SCHED_IDLE (any stage preempts it at once). On a VM an idle
+    /// core pays a halt exit and a lowered clock on every wake-up; this
+    /// trades full power draw on those cores for that latency. The jitter
+    /// tool's timer baseline then runs with the same spinners.
+    #[serde(default)]
+    pub keep_cores_warm: bool,
 }
 
 fn default_prefix() -> String {

@@ -170,11 +170,30 @@ fn prepare_prefix(cfg: &mut PipelineConfig, opts: &RunOptions) -> String {
     prefix
 }
 
+/// With `run.keep_cores_warm`, idle-class spinners on every core a stage
+/// is pinned to, for as long as the guard lives (see [`crate::rt::keep_warm`]).
+pub fn keep_warm(cfg: &PipelineConfig) -> Option<crate::rt::KeepWarm> {
+    if !cfg.run.keep_cores_warm {
+        return None;
+    }
+    let cores: Vec<usize> = StageKind::ALL
+        .iter()
+        .filter_map(|&k| cfg.stages.get(k).core)
+        .collect();
+    let w = crate::rt::KeepWarm::start(&cores);
+    for e in w.warnings() {
+        eprintln!("warning: {e}");
+    }
+    Some(w)
+}
+
 /// Run the pipeline; returns the report JSON.
 pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, LaunchError> {
     let mut cfg = load_config(opts)?;
     let prefix = prepare_prefix(&mut cfg, opts);
+    let warm = keep_warm(&cfg);
     let result = run_loop::supervise(&cfg, opts, &prefix, stop);
+    drop(warm);
     // Whatever happened, leave nothing behind.
     let cleaned = cleanup::remove_prefix(&prefix);
     let left = cleanup::resources(&prefix);
