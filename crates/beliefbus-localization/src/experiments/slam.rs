@@ -24,6 +24,7 @@
 //! over the run divided by its odometry steps.
 
 use super::params::{mean_se, Params};
+use super::slam_noise::{map_error, NoiseReading};
 use super::slam_plot::write_plot;
 use super::{Report, Row};
 use crate::carpark::{CarPark, CarParkConfig};
@@ -203,55 +204,6 @@ pub const PAPER: &[(usize, Cell, Cell, Cell)] = &[
 /// EKF-SLAM in the paper's text: 3.89 % at 0.43 ms.
 pub const PAPER_EKF: (f64, f64) = (0.43, 3.89);
 
-/// How the numbers of Table 7 and σ₁, σ₂ are read (the notes' §3.4): the
-/// table calls P and Q covariances, but the model multiplies dW by them,
-/// and the appendix's gradient divides by σ where 0.05π/180 reads as a
-/// standard deviation of 0.05°.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum NoiseReading {
-    /// P, Q and σ₁, σ₂ are the diagonal entries of the covariances.
-    Variance,
-    /// They are standard deviations (of the intensities): Σ₁ = δ(G PPᵀ Gᵀ + QQᵀ),
-    /// Σ₂ = diag(σ₁², σ₂²).
-    Sigma,
-}
-
-impl NoiseReading {
-    /// Parse "variance" or "sigma".
-    pub fn parse(s: &str) -> Result<Self, LocalizationError> {
-        match s {
-            "variance" => Ok(Self::Variance),
-            "sigma" => Ok(Self::Sigma),
-            _ => Err(LocalizationError::Param {
-                key: "noise_reading".into(),
-                msg: format!("'{s}': need 'variance' or 'sigma'"),
-            }),
-        }
-    }
-
-    /// The motion noise intensities under this reading.
-    pub fn motion(self, m: MotionNoise) -> MotionNoise {
-        match self {
-            Self::Variance => m,
-            Self::Sigma => MotionNoise {
-                p: m.p.map(|v| v * v),
-                q: m.q.map(|v| v * v),
-            },
-        }
-    }
-
-    /// The laser variances under this reading.
-    pub fn laser(self, l: LaserNoise) -> LaserNoise {
-        match self {
-            Self::Variance => l,
-            Self::Sigma => LaserNoise {
-                var_range: l.var_range * l.var_range,
-                var_bearing: l.var_bearing * l.var_bearing,
-            },
-        }
-    }
-}
-
 /// Everything a run needs.
 #[derive(Clone, Debug)]
 pub struct Setup {
@@ -396,20 +348,6 @@ pub struct RunMetrics {
     pub map_ratio: f64,
     /// Mean distance of the estimate's landmarks to the nearest true one (m).
     pub map_err_m: f64,
-}
-
-/// Mean distance from each estimated landmark to its nearest true one.
-pub fn map_error(est: &[crate::geometry::Point], truth: &[crate::geometry::Point]) -> f64 {
-    if est.is_empty() {
-        return 0.0;
-    }
-    let near = |m: &crate::geometry::Point| {
-        truth
-            .iter()
-            .map(|t| (t[0] - m[0]).hypot(t[1] - m[1]))
-            .fold(f64::INFINITY, f64::min)
-    };
-    est.iter().map(near).sum::<f64>() / est.len() as f64
 }
 
 /// `slam`: Table 6 with `runs` data sets (default 50, the paper's).
