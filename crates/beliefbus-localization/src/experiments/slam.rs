@@ -25,7 +25,7 @@
 
 use super::params::{mean_se, Params};
 use super::slam_noise::{map_error, NoiseReading};
-use super::slam_plot::write_plot;
+use super::slam_plot::{write_paths, write_plot, PathMap};
 use super::{Report, Row};
 use crate::carpark::{CarPark, CarParkConfig};
 use crate::error::LocalizationError;
@@ -153,7 +153,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p(
         "plot",
         "(none)",
-        "write an SVG of time per update against error (ours and the paper's) here",
+        "write an SVG of time per update against error (ours and the paper's) here, and one of data set 0's paths and maps beside it (<name>-paths.svg)",
     ),
 ];
 
@@ -376,6 +376,21 @@ pub fn run(
     }
     let mut per: Vec<Vec<RunMetrics>> = vec![Vec::with_capacity(runs); s.methods.len()];
     let (mut steps, mut picks_n, mut seen_n, mut length) = (0, 0, 0, 0.0);
+    // The first data set's paths and maps, one method each (M = 100 where
+    // swept), for the figure.
+    let shown: Vec<usize> = (0..s.methods.len())
+        .filter(|&i| {
+            let (name, m) = s.methods[i];
+            let first = s.methods.iter().position(|x| x.0 == name) == Some(i);
+            let has100 = s.methods.contains(&(name, 100));
+            if has100 {
+                m == 100
+            } else {
+                first
+            }
+        })
+        .collect();
+    let mut first: Option<(Vec<Pose>, Vec<crate::geometry::Point>, Vec<PathMap>)> = None;
     for r in 0..runs as u64 {
         let cp = CarPark::generate(&rec, &s.carpark, &mut stream(seed, r))?;
         let picks = pick_one_per_scan(&cp, &mut stream(seed, 2_000_000 + r));
@@ -403,6 +418,15 @@ pub fn run(
                 .sum();
             let st = f.stats();
             let map = f.map();
+            if r == 0 && s.plot.is_some() && shown.contains(&i) {
+                let fig = first
+                    .get_or_insert_with(|| (cp.truth.clone(), cp.landmarks.clone(), Vec::new()));
+                fig.2.push(PathMap {
+                    name: format!("{name} (M = {m})"),
+                    path: est.clone(),
+                    map: map.clone(),
+                });
+            }
             per[i].push(RunMetrics {
                 map_err_m: map_error(&map, &cp.landmarks),
                 error_pct: trajectory_error_pct(&cp.truth, &est),
@@ -505,8 +529,22 @@ pub fn run(
     if let Some(path) = &s.plot {
         write_plot(path, &rep)?;
         rep.notes.push(format!("plot: {path}"));
+        if let Some((truth, lms, tracks)) = &first {
+            let pp = paths_file(path);
+            write_paths(&pp, truth, lms, tracks)?;
+            rep.notes
+                .push(format!("paths and maps of data set 0: {pp}"));
+        }
     }
     Ok(rep)
+}
+
+/// `a/b.svg` → `a/b-paths.svg`.
+pub fn paths_file(plot: &str) -> String {
+    match plot.strip_suffix(".svg") {
+        Some(stem) => format!("{stem}-paths.svg"),
+        None => format!("{plot}-paths.svg"),
+    }
 }
 
 /// The acceptance comparisons, paired over the data sets.

@@ -95,6 +95,13 @@ mod tests {
     }
 
     #[test]
+    fn the_paths_figure_sits_beside_the_error_figure() {
+        use crate::experiments::slam::paths_file;
+        assert_eq!(paths_file("out/slam.svg"), "out/slam-paths.svg");
+        assert_eq!(paths_file("slam"), "slam-paths.svg");
+    }
+
+    #[test]
     fn map_error_is_the_mean_distance_to_the_nearest_true_landmark() {
         let truth = [[0.0, 0.0], [10.0, 0.0]];
         let est = [[0.0, 3.0], [9.0, 0.0], [10.0, 4.0]];
