@@ -90,3 +90,62 @@ pub fn write_plot(path: &str, rep: &Report) -> Result<(), LocalizationError> {
     }
     svg.write(path)
 }
+
+/// One method's run on a data set: its name, estimated path and map.
+pub struct PathMap {
+    pub name: String,
+    pub path: Vec<crate::geometry::Pose>,
+    pub map: Vec<crate::geometry::Point>,
+}
+
+/// Paper 003 Fig. 7 (left): one data set, a panel per method: the true
+/// path (grey) and landmarks (grey rings), the estimated path (colour) and
+/// map (black).
+pub fn write_paths(
+    path: &str,
+    truth: &[crate::geometry::Pose],
+    landmarks: &[crate::geometry::Point],
+    runs: &[PathMap],
+) -> Result<(), LocalizationError> {
+    let cols = runs.len().clamp(1, 3);
+    let rows = runs.len().div_ceil(cols).max(1);
+    let pw = 380.0;
+    let mut svg = Svg::new(
+        40.0 + cols as f64 * (pw + 90.0),
+        60.0 + rows as f64 * (pw + 90.0),
+    );
+    svg.text(
+        20.0,
+        24.0,
+        18.0,
+        "SLAM on one synthetic car park: estimated path (colour) and map (black) over the truth (grey)",
+    );
+    let (x0, x1) = range(truth.iter().map(|p| p[0]), 0.1);
+    let (y0, y1) = range(truth.iter().map(|p| p[1]), 0.1);
+    let half = (x1 - x0).max(y1 - y0) / 2.0 + 10.0;
+    let (cx, cy) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0);
+    let thin = |p: &[crate::geometry::Pose]| -> Vec<(f64, f64)> {
+        p.iter().step_by(5).map(|q| (q[0], q[1])).collect()
+    };
+    for (k, r) in runs.iter().enumerate() {
+        let panel = Panel {
+            x0: 90.0 + (k % cols) as f64 * (pw + 90.0),
+            y0: 70.0 + (k / cols) as f64 * (pw + 90.0),
+            w: pw,
+            h: pw,
+            xr: (cx - half, cx + half),
+            yr: (cy - half, cy + half),
+            ylog: false,
+        };
+        svg.axes(&panel, &r.name, "x (m)", "y (m)");
+        svg.line(&panel, &thin(truth), "#b0b0b0", 2.0);
+        for m in landmarks {
+            svg.dot(&panel, m[0], m[1], 3.0, "#c8c8c8", "");
+        }
+        svg.line(&panel, &thin(&r.path), COLORS[k % COLORS.len()], 1.2);
+        for m in &r.map {
+            svg.dot(&panel, m[0], m[1], 1.5, "black", "");
+        }
+    }
+    svg.write(path)
+}

@@ -52,6 +52,27 @@ pub fn log_normal(nu: &Vector2<f64>, s: &Matrix2<f64>) -> Option<(f64, Matrix2<f
     Some((ll, inv))
 }
 
+/// FastSLAM 2.0's proposal update for one return, linearised at μ: with
+/// S = H_x Σ H_xᵀ + Q, μ += K ν, Σ −= K S Kᵀ (K = Σ H_xᵀ S⁻¹); returns
+/// log N(ν; 0, S), the return's factor of the weight. For a linear model
+/// this is the optimal Gaussian proposal p(x | x_{n−1}, z) and its
+/// predictive likelihood p(z | x_{n−1}).
+pub fn gaussian_proposal_update(
+    mu: &mut Pose,
+    sig: &mut Matrix3<f64>,
+    nu: &Vector2<f64>,
+    hx: &nalgebra::Matrix2x3<f64>,
+    q: &Matrix2<f64>,
+) -> Option<f64> {
+    let s = hx * *sig * hx.transpose() + q;
+    let (ll, sinv) = log_normal(nu, &s)?;
+    let k = *sig * hx.transpose() * sinv;
+    *mu += k * nu;
+    *sig -= k * s * k.transpose();
+    *sig = 0.5 * (*sig + sig.transpose());
+    Some(ll)
+}
+
 /// The EKF update of a landmark seen from a known pose x; returns the new
 /// landmark and log N(ν; 0, H_m P H_mᵀ + Σ₂).
 pub fn update_landmark(
@@ -176,14 +197,10 @@ impl SlamFilter for FastSlam {
                         if let Association::Known(k) = *a {
                             let lm = map.get(k).expect("k < len");
                             let (nu, hx, hm) = innovation(&mu, [lm.m[0], lm.m[1]], z);
-                            let s = hx * sig * hx.transpose() + hm * lm.p * hm.transpose() + r;
-                            let (ll, sinv) = log_normal(&nu, &s)
+                            let q = hm * lm.p * hm.transpose() + r;
+                            let ll = gaussian_proposal_update(&mut mu, &mut sig, &nu, &hx, &q)
                                 .ok_or_else(|| bad("FastSLAM 2.0 innovation"))?;
                             lw += ll;
-                            let k = sig * hx.transpose() * sinv;
-                            mu += k * nu;
-                            sig -= k * s * k.transpose();
-                            sig = 0.5 * (sig + sig.transpose());
                         }
                     }
                     match sig.cholesky() {

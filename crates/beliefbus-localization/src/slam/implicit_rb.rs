@@ -97,8 +97,19 @@ fn minimise(
     terms: &[Term],
     s: &NewtonSettings,
 ) -> Option<(Pose, f64, Matrix3<f64>, usize)> {
+    minimise_by(f, |x| eval(x, f, prec, terms), s)
+}
+
+/// Damped (Gauss–)Newton on any objective `eval(x) = (F, ∇F, H)` with a
+/// positive definite H, started at the predicted pose f; (μ, F(μ), L with
+/// LLᵀ = H(μ), steps) or None on a non-finite iterate.
+pub fn minimise_by(
+    f: &Pose,
+    eval: impl Fn(&Pose) -> (f64, Vector3<f64>, Matrix3<f64>),
+    s: &NewtonSettings,
+) -> Option<(Pose, f64, Matrix3<f64>, usize)> {
     let mut x = *f;
-    let (mut v, mut g, h) = eval(&x, f, prec, terms);
+    let (mut v, mut g, h) = eval(&x);
     let mut l = h.cholesky()?.l();
     let mut iters = 0;
     while iters < s.max_iter {
@@ -115,7 +126,7 @@ fn minimise(
         let mut accepted = false;
         for _ in 0..30 {
             let xn = x + dir * t;
-            let (vn, gn, hn) = eval(&xn, f, prec, terms);
+            let (vn, gn, hn) = eval(&xn);
             if vn <= v - 1e-4 * t * dec {
                 x = xn;
                 v = vn;
@@ -132,6 +143,22 @@ fn minimise(
         }
     }
     (v.is_finite() && x.iter().all(|c| c.is_finite())).then_some((x, v, l, iters))
+}
+
+/// The linear map x = μ + L⁻ᵀ ξ and its log weight ½ξᵀξ − F(x) − log det L
+/// (= −φ + F̂(x) − F(x) − log det L: the target e^{−F} over the proposal
+/// N(μ, (LLᵀ)⁻¹), up to the constant (2π)^{3/2}).
+pub fn linear_map_draw(
+    mu: &Pose,
+    l: &Matrix3<f64>,
+    xi: &Vector3<f64>,
+    value: impl Fn(&Pose) -> f64,
+) -> Option<(Pose, f64)> {
+    let y = l.tr_solve_lower_triangular(xi)?;
+    let xs = mu + y;
+    let ldl: f64 = (0..3).map(|i| l[(i, i)].ln()).sum();
+    let inc = 0.5 * xi.dot(xi) - value(&xs) - ldl;
+    inc.is_finite().then_some((xs, inc))
 }
 
 impl SlamFilter for ImplicitRbSlam {
@@ -204,16 +231,12 @@ impl SlamFilter for ImplicitRbSlam {
             let xn = if self.terms.is_empty() {
                 f + noise.draw(x[2], &xi)
             } else {
-                let sample =
-                    minimise(&f, &prec, &self.terms, &self.newton).and_then(|(mu, _, l, it)| {
-                        self.stats.newton_iters += it;
-                        let y = l.tr_solve_lower_triangular(&xi)?;
-                        let xs = mu + y;
-                        let (fv, _, _) = eval(&xs, &f, &prec, &self.terms);
-                        let ldl: f64 = (0..3).map(|i| l[(i, i)].ln()).sum();
-                        let inc = 0.5 * xi.dot(&xi) - fv - ldl + motion_norm;
-                        inc.is_finite().then_some((xs, inc))
-                    });
+                let terms = &self.terms;
+                let sample = minimise(&f, &prec, terms, &self.newton).and_then(|(mu, _, l, it)| {
+                    self.stats.newton_iters += it;
+                    let (xs, inc) = linear_map_draw(&mu, &l, &xi, |x| eval(x, &f, &prec, terms).0)?;
+                    Some((xs, inc + motion_norm))
+                });
                 match sample {
                     Some((xs, inc)) => {
                         lw += inc;
@@ -270,5 +293,100 @@ impl SlamFilter for ImplicitRbSlam {
 
     fn stats(&self) -> SlamStats {
         self.set.stats_with(self.stats)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::slam::fastslam::gaussian_proposal_update;
+    use nalgebra::{Matrix2x3, Vector2};
+
+    fn settings() -> NewtonSettings {
+        NewtonSettings {
+            max_iter: 50,
+            tol: 1e-20,
+        }
+    }
+
+    /// On a linear-Gaussian toy, F(x) = ½‖x − f‖²_{P⁻¹} + ½‖z − Hx − c‖²_{S⁻¹}
+    /// is quadratic: Newton's minimiser and Hessian are the Kalman update
+    /// (FastSLAM 2.0's proposal, the optimal one), and every draw's weight
+    /// is log N(z; Hf + c, HPHᵀ + S), whatever ξ.
+    #[test]
+    fn implicit_proposal_equals_the_optimal_gaussian_proposal_on_a_linear_toy() {
+        let f = Pose::new(1.0, -2.0, 0.3);
+        let p = Matrix3::new(0.5, 0.1, 0.02, 0.1, 0.4, -0.03, 0.02, -0.03, 0.05);
+        let hm = Matrix2x3::new(0.8, -0.6, 0.0, 0.05, 0.07, -1.0);
+        let c = Vector2::new(3.0, 0.2);
+        let s = Matrix2::new(0.3, 0.05, 0.05, 0.02);
+        let z = Vector2::new(4.0, 0.9);
+        let (pinv, sinv) = (p.try_inverse().unwrap(), s.try_inverse().unwrap());
+        let objective = |x: &Pose| {
+            let d = x - f;
+            let nu = z - hm * x - c;
+            let v = 0.5 * d.dot(&(pinv * d)) + 0.5 * nu.dot(&(sinv * nu));
+            let g = pinv * d - hm.transpose() * sinv * nu;
+            let h = pinv + hm.transpose() * sinv * hm;
+            (v, g, h)
+        };
+        let (mu, _, l, _) = minimise_by(&f, objective, &settings()).unwrap();
+        let (mut mk, mut sk) = (f, p);
+        let ll = gaussian_proposal_update(&mut mk, &mut sk, &(z - hm * f - c), &hm, &s).unwrap();
+        assert!((mu - mk).norm() < 1e-10, "{mu} vs {mk}");
+        let cov = (l * l.transpose()).try_inverse().unwrap();
+        assert!((cov - sk).norm() < 1e-10 * sk.norm(), "{cov} vs {sk}");
+        // The weight of implicit-rb's step: draw's increment − ½ log det P
+        // − log 2π − ½ log det S.
+        let konst = -0.5 * p.determinant().ln()
+            - (2.0 * std::f64::consts::PI).ln()
+            - 0.5 * s.determinant().ln();
+        for xi in [
+            Vector3::zeros(),
+            Vector3::new(1.0, -0.5, 2.0),
+            Vector3::new(-2.5, 0.3, 0.7),
+        ] {
+            let (x, inc) = linear_map_draw(&mu, &l, &xi, |x| objective(x).0).unwrap();
+            assert!((l.transpose() * (x - mu) - xi).norm() < 1e-9);
+            assert!((inc + konst - ll).abs() < 1e-9, "{} vs {ll}", inc + konst);
+        }
+    }
+
+    /// The same particle on the laser model: implicit-rb's proposal (the
+    /// minimiser of the exact-in-x F with the landmark's S) and FastSLAM
+    /// 2.0's (one linearisation at f) differ only by the linearisation,
+    /// which vanishes as the step noise shrinks.
+    #[test]
+    fn implicit_rb_and_fastslam2_proposals_coincide_as_the_model_becomes_linear() {
+        let r = Matrix2::new(0.01, 0.0, 0.0, 1e-4);
+        let lm_p = Matrix2::new(0.02, 0.005, 0.005, 0.03);
+        let m = [6.0, 9.0];
+        let truth = Pose::new(0.4, -0.3, 0.2);
+        let (range, bearing) = crate::laser::predict(&truth, m);
+        let z = RangeBearing { range, bearing };
+        let base = Matrix3::new(0.2, 0.02, 0.0, 0.02, 0.2, 0.0, 0.0, 0.0, 0.01);
+        let mut rel = vec![];
+        for eps in [1.0, 0.1, 0.01] {
+            let sig = base * eps * eps;
+            // The predicted pose is off the truth by one standard deviation.
+            let f = truth + Vector3::new(0.45, -0.45, 0.1) * eps;
+            let (_, _, hm) = innovation(&f, m, &z);
+            let q = hm * lm_p * hm.transpose() + r;
+            let terms = [Term {
+                m,
+                z,
+                sinv: q.try_inverse().unwrap(),
+            }];
+            let prec = sig.try_inverse().unwrap();
+            let (mu, _, _, _) = minimise(&f, &prec, &terms, &settings()).unwrap();
+            let (nu, hx, _) = innovation(&f, m, &z);
+            let (mut mk, mut sk) = (f, sig);
+            gaussian_proposal_update(&mut mk, &mut sk, &nu, &hx, &q).unwrap();
+            let d = (mu - mk).norm() / (mk - f).norm();
+            rel.push(d);
+        }
+        // Second-order agreement: the gap relative to the step falls with ε.
+        assert!(rel[2] < 0.01, "{rel:?}");
+        assert!(rel[1] < rel[0] && rel[2] < rel[1], "{rel:?}");
     }
 }
