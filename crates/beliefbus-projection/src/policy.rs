@@ -183,16 +183,21 @@ impl GridPolicy {
         }
     }
 
-    /// Write the policy as JSON.
+    /// Write the policy as JSON, creating the parent directory if needed
+    /// (a cache directory that does not exist yet is not an error).
     pub fn save(&self, path: &Path) -> Result<(), PolicyError> {
         let text = serde_json::to_string(self).map_err(|e| PolicyError::Parse {
             path: path.to_path_buf(),
             detail: e.to_string(),
         })?;
-        std::fs::write(path, text).map_err(|source| PolicyError::Io {
+        let io = |source| PolicyError::Io {
             path: path.to_path_buf(),
             source,
-        })
+        };
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(io)?;
+        }
+        std::fs::write(path, text).map_err(io)
     }
 
     /// Read a policy file and check its internal consistency.

@@ -10,6 +10,7 @@
 //! mean 5 puts the full-observation optimum near its L* = 7.7), h = 1,
 //! s = 10, Q = 10, x_0 = 5.
 
+pub mod exact;
 pub mod policies;
 pub mod sim;
 

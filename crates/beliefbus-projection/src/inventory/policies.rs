@@ -58,6 +58,19 @@ pub fn threshold_action(estimate: f64, threshold: f64) -> usize {
     usize::from(estimate < threshold)
 }
 
+/// The paper's greedy rule (§VI), argmin_a E_{x_k,u_k}[g_k(x_k, a_k Q, u_k) | I_k],
+/// on the weighted particle belief {(x_i, w_i)}: the demand expectation in
+/// closed form, E = Σ_i w_i E_u[g(x_i, a, u)]. Ties do not order.
+pub fn greedy_action(model: &Inventory, particles: &[f64], weights: &[f64]) -> usize {
+    let mut q = [0.0; 2];
+    for (&x, &w) in particles.iter().zip(weights) {
+        for (a, qa) in q.iter_mut().enumerate() {
+            *qa += w * model.expected_cost(x, a);
+        }
+    }
+    usize::from(q[1] < q[0])
+}
+
 /// The full-observation threshold policy on the true state.
 pub struct FullObs {
     pub threshold: f64,
@@ -143,15 +156,7 @@ impl Controller for BootstrapController {
             BeliefRule::CeMle { threshold } => {
                 threshold_action(self.pf.max_weight_particle()[0], threshold)
             }
-            BeliefRule::Greedy => {
-                let mut q = [0.0; 2];
-                for (x, &w) in self.pf.particles().iter().zip(self.pf.weights()) {
-                    for (a, qa) in q.iter_mut().enumerate() {
-                        *qa += w * model.expected_cost(*x, a);
-                    }
-                }
-                usize::from(q[1] < q[0])
-            }
+            BeliefRule::Greedy => greedy_action(model, self.pf.particles(), self.pf.weights()),
         })
     }
 }
