@@ -23,14 +23,18 @@ fn data() -> Option<std::path::PathBuf> {
 }
 
 fn run(scenario: &str, sets: &[String], duration: &str) -> Value {
-    let dir = std::env::temp_dir().join(format!(
-        "beliefbus-{scenario}-{}",
-        std::process::id()
-    ));
+    let dir = std::env::temp_dir().join(format!("beliefbus-{scenario}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let report = dir.join("report.json");
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_beliefbus"));
-    cmd.args(["run", "--scenario", scenario, "--duration", duration, "--quiet"]);
+    cmd.args([
+        "run",
+        "--scenario",
+        scenario,
+        "--duration",
+        duration,
+        "--quiet",
+    ]);
     for s in sets {
         cmd.args(["--set", s]);
     }
@@ -80,14 +84,20 @@ fn implicit_slam_maps_the_first_minute_of_victoria_park_live() {
     assert_eq!(n(&ch["odometry"]["samples"]), n(&m["steps_in_run"]), "{m}");
     assert!(n(&ch["odometry"]["beliefs"]) > 2000, "{ch}");
     assert!(n(&ch["laser"]["samples"]) > 250, "{ch}");
-    assert!(n(&ch["laser"]["detections"]) > n(&ch["laser"]["samples"]), "{ch}");
+    assert!(
+        n(&ch["laser"]["detections"]) > n(&ch["laser"]["samples"]),
+        "{ch}"
+    );
     assert!(n(&m["steps_reached"]) + 50 >= n(&m["steps_in_run"]), "{m}");
     assert!(n(&m["gps_fixes_scored"]) > 100, "{m}");
     let f = |k: &str| m[k].as_f64().unwrap();
     let trees = f("map_landmarks");
     assert!((5.0..=150.0).contains(&trees), "{m}");
     assert!(f("gps_rms_m") < 10.0, "{m}");
-    assert!(f("ess_min") >= 1.0 - 1e-9 && f("ess_mean") <= 50.0 + 1e-9, "{m}");
+    assert!(
+        f("ess_min") >= 1.0 - 1e-9 && f("ess_mean") <= 50.0 + 1e-9,
+        "{m}"
+    );
 }
 
 /// SLAM on the car park: no map given, the filter builds one.

@@ -197,8 +197,10 @@ impl LiveSlam {
         ctx: &FilterContext,
     ) -> Option<Result<Self, String>> {
         let slam = match name {
-            IMPLICIT_SLAM => ImplicitSlam::new(cfg.model, cfg.particles, cfg.ess_threshold, cfg.newton)
-                .map(|f| (IMPLICIT_SLAM, Slam::Implicit(Box::new(f)))),
+            IMPLICIT_SLAM => {
+                ImplicitSlam::new(cfg.model, cfg.particles, cfg.ess_threshold, cfg.newton)
+                    .map(|f| (IMPLICIT_SLAM, Slam::Implicit(Box::new(f))))
+            }
             FASTSLAM2 => FastSlam::new(cfg.model, Version::Two, cfg.particles, cfg.ess_threshold)
                 .map(|f| (FASTSLAM2, Slam::Fast(Box::new(f)))),
             EKF_SLAM => EkfSlam::new(cfg.model).map(|f| (EKF_SLAM, Slam::Ekf(Box::new(f)))),
@@ -215,7 +217,10 @@ impl LiveSlam {
     ) -> Result<Self, String> {
         let (name, slam) = slam?;
         if !(cfg.time_scale.is_finite() && cfg.time_scale > 0.0) {
-            return Err(format!("the time scale must be > 0, got {}", cfg.time_scale));
+            return Err(format!(
+                "the time scale must be > 0, got {}",
+                cfg.time_scale
+            ));
         }
         if dims.state != POSE || dims.obs < LASER0 + 3 * PER_SAMPLE {
             return Err(format!(

@@ -33,7 +33,7 @@
 //!
 //! and optionally
 //! - `control.backend = "pure-pursuit"`: steer along the data set's path
-//!   from the belief ([`control`]), or `control.backend = "mppi"`: the
+//!   from the belief ([`control`]), or `control.backend = "path-mppi"`: the
 //!   same path followed by MPPI on the car's kinematics ([`mppi`]); the
 //!   plant then drives itself with the recorded wheel speed and the
 //!   commanded steering ([`plant`]).
@@ -77,7 +77,7 @@ pub const STANDARD: &str = "mcl";
 /// Controller: pure pursuit along the path.
 pub const PURE_PURSUIT: &str = "pure-pursuit";
 /// Controller: MPPI along the path.
-pub const MPPI: &str = "mppi";
+pub const MPPI: &str = "path-mppi";
 /// Channel ids.
 pub const ODOMETRY: u32 = 0;
 pub const LASER: u32 = 1;
@@ -123,17 +123,17 @@ pub struct CarparkControlParams {
     pub lookahead_m: f64,
     /// Steering limit (rad); the plant clamps to it too.
     pub max_steering: f64,
-    /// `mppi`: sampled steering sequences K.
+    /// `path-mppi`: sampled steering sequences K.
     pub mppi_samples: usize,
-    /// `mppi`: horizon steps T and rollout step Δ (s).
+    /// `path-mppi`: horizon steps T and rollout step Δ (s).
     pub mppi_horizon_steps: usize,
     pub mppi_dt: f64,
-    /// `mppi`: temperature λ (cost units: m² s of squared cross-track
+    /// `path-mppi`: temperature λ (cost units: m² s of squared cross-track
     /// distance).
     pub mppi_temperature: f64,
-    /// `mppi`: σ of the steering noise (rad).
+    /// `path-mppi`: σ of the steering noise (rad).
     pub mppi_noise_std: f64,
-    /// `mppi`: weight r of r α² per second.
+    /// `path-mppi`: weight r of r α² per second.
     pub mppi_control_weight: f64,
 }
 
@@ -418,9 +418,9 @@ impl System for CarparkSystem {
         ctx: &ControlContext,
     ) -> Option<Result<Box<dyn Controller>, String>> {
         match name {
-            PURE_PURSUIT => Some(
-                control::PurePursuit::new(self).map(|c| Box::new(c) as Box<dyn Controller>),
-            ),
+            PURE_PURSUIT => {
+                Some(control::PurePursuit::new(self).map(|c| Box::new(c) as Box<dyn Controller>))
+            }
             MPPI => Some(
                 mppi::MppiFollower::new(self, ctx.seed).map(|c| Box::new(c) as Box<dyn Controller>),
             ),

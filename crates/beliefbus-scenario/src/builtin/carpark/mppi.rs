@@ -1,4 +1,4 @@
-//! Backend `mppi`: path following by model-predictive path-integral
+//! Backend `path-mppi`: path following by model-predictive path-integral
 //! control (paper 003's path-integral control, sampled as MPPI, Williams et
 //! al. 2017; [`beliefbus_core::control::mppi`]) on the Ute's kinematics,
 //! an alternative to [`super::control::PurePursuit`].
@@ -184,7 +184,10 @@ impl MppiFollower {
         };
         let cost = PolylineCost::new(1.0, c.mppi_horizon_steps as f64 * c.mppi_dt);
         let mppi = Mppi::new(CarModel::new(cp.ute), cost, &cfg).map_err(|e| {
-            format!("carpark.control.mppi_{}", e.to_string().trim_start_matches(' '))
+            format!(
+                "carpark.control.mppi_{}",
+                e.to_string().trim_start_matches(' ')
+            )
         })?;
         // The local path covers the horizon at the data set's top speed
         // (about 7 m/s) with the points spread evenly; path points are one

@@ -460,7 +460,9 @@ fn mppi_keeps_the_self_driving_plant_on_the_path() {
         idx = i;
         se += d * d;
         n += 1;
-        if c.compute(t, &Gaussian::diagonal(&x, &[0.01; 3]), &mut u).is_ok() {
+        if c.compute(t, &Gaussian::diagonal(&x, &[0.01; 3]), &mut u)
+            .is_ok()
+        {
             ok += 1;
         }
         c.prepare();
@@ -469,4 +471,3 @@ fn mppi_keeps_the_self_driving_plant_on_the_path() {
     let rms = (se / n as f64).sqrt();
     assert!(rms < 0.5, "MPPI on the true pose: {rms} m from the path");
 }
-

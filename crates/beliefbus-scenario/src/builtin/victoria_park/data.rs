@@ -105,14 +105,19 @@ pub fn parse_trees(text: &str) -> Result<Vec<(f64, Tree)>, String> {
         let mut n = 0;
         for cell in line.split(',') {
             if n == 5 {
-                return Err(format!("tree features: line {}: more than 5 columns", i + 1));
+                return Err(format!(
+                    "tree features: line {}: more than 5 columns",
+                    i + 1
+                ));
             }
             v[n] = cell
                 .trim()
                 .parse::<f64>()
                 .ok()
                 .filter(|x| x.is_finite())
-                .ok_or_else(|| format!("tree features: line {}: '{cell}' is not a number", i + 1))?;
+                .ok_or_else(|| {
+                    format!("tree features: line {}: '{cell}' is not a number", i + 1)
+                })?;
             n += 1;
         }
         if n != 5 || !(v[2] > 0.0) || out.last().is_some_and(|l| v[0] < l.0) {

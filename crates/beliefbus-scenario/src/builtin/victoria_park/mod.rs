@@ -173,7 +173,10 @@ impl VictoriaParkParams {
 
     fn validate(&self) -> Result<(), String> {
         if !(self.speedup.is_finite() && self.speedup > 0.0 && self.speedup <= 1000.0) {
-            return Err(format!("speedup must be in (0, 1000], got {}", self.speedup));
+            return Err(format!(
+                "speedup must be in (0, 1000], got {}",
+                self.speedup
+            ));
         }
         if !(self.gps_max_speed > 0.0 && self.start_heading_deg.is_finite()) {
             return Err("gps_max_speed must be > 0 and start_heading_deg finite".into());

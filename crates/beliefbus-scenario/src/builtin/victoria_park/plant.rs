@@ -89,7 +89,10 @@ impl VictoriaParkPlant {
     }
 
     fn laser_due(&self) -> bool {
-        self.run.scans.get(self.scan).is_some_and(|s| s.step == self.k)
+        self.run
+            .scans
+            .get(self.scan)
+            .is_some_and(|s| s.step == self.k)
     }
 
     /// The GPS reference at data-set time `t`.

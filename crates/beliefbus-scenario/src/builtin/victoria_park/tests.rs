@@ -234,7 +234,9 @@ fn live_slam_follows_the_filter_stepped_on_the_recording() {
         t0: 0.0,
     };
     for name in BACKENDS {
-        let mut live = LiveSlam::new(name, &cfg, sys.dims(), &ctx).unwrap().unwrap();
+        let mut live = LiveSlam::new(name, &cfg, sys.dims(), &ctx)
+            .unwrap()
+            .unwrap();
         let mut direct: Box<dyn SlamFilter> = match name {
             EKF_SLAM => Box::new(EkfSlam::new(cfg.model).unwrap()),
             FASTSLAM2 => Box::new(FastSlam::new(cfg.model, Version::Two, 20, 0.5).unwrap()),
@@ -248,12 +250,7 @@ fn live_slam_follows_the_filter_stepped_on_the_recording() {
             let comps = &sys.sensor_channels()[*ch].components;
             let mask = ObsMask(comps.iter().map(|c| 1u32 << c).sum());
             live.predict(*t, &[0.0]).unwrap();
-            live.update(&Measurement {
-                y,
-                mask,
-                std: None,
-            })
-            .unwrap();
+            live.update(&Measurement { y, mask, std: None }).unwrap();
             if *ch == 1 {
                 for j in 0..2 {
                     if y[4 + 3 * j] != -1.0 {
@@ -332,7 +329,10 @@ fn the_error_against_gps_is_scored_at_the_nearest_step() {
     assert_eq!(r["map_landmarks"].as_f64().unwrap(), 12.0);
     assert_eq!(r["steps_reached"], 24);
     // Dead reckoning on this noise-free drive is the true path: 0 error.
-    assert!(r["dead_reckoning_gps_rms_m"].as_f64().unwrap() < 1e-9, "{r}");
+    assert!(
+        r["dead_reckoning_gps_rms_m"].as_f64().unwrap() < 1e-9,
+        "{r}"
+    );
 }
 
 #[test]
