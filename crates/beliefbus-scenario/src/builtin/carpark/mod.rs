@@ -125,8 +125,9 @@ pub struct CarparkControlParams {
     pub max_steering: f64,
     /// `path-mppi`: sampled steering sequences K.
     pub mppi_samples: usize,
-    /// `path-mppi`: horizon steps T and rollout step Δ (s).
+    /// `path-mppi`: horizon steps T.
     pub mppi_horizon_steps: usize,
+    /// `path-mppi`: rollout step Δ (s).
     pub mppi_dt: f64,
     /// `path-mppi`: temperature λ (cost units: m² s of squared cross-track
     /// distance).

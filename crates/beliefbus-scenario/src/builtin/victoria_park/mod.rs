@@ -108,8 +108,9 @@ pub struct VictoriaParkFilter {
     pub particles: usize,
     /// Resample when ESS < this fraction of M.
     pub ess_threshold: f64,
-    /// Implicit SLAM: Newton steps at most, and the decrement to stop at.
+    /// Implicit SLAM: Newton steps at most.
     pub newton_max_iter: usize,
+    /// Implicit SLAM: stop when the Newton decrement falls below this.
     pub newton_tol: f64,
 }
 
