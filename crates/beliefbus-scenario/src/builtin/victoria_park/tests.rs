@@ -96,8 +96,10 @@ fn synthetic() -> Run {
 }
 
 fn system() -> VictoriaParkSystem {
-    let mut p = VictoriaParkParams::default();
-    p.start_heading_deg = 0.0;
+    let mut p = VictoriaParkParams {
+        start_heading_deg: 0.0,
+        ..VictoriaParkParams::default()
+    };
     p.filter.particles = 20;
     VictoriaParkSystem::from_run(p, synthetic()).unwrap()
 }
