@@ -11,6 +11,9 @@ pub mod carpark;
 pub use carpark::CarparkScenario;
 pub mod inventory;
 pub use inventory::InventoryScenario;
+pub mod live_slam;
+pub mod victoria_park;
+pub use victoria_park::VictoriaParkScenario;
 
 /// The drifting ship of paper 001 eq. (10)–(11) with a control force,
 /// range–bearing sensor, waypoint route.

@@ -81,7 +81,8 @@ impl Controller for PurePursuit {
         belief: &Gaussian,
         u: &mut [f64],
     ) -> Result<ControlInfo, ControlError> {
-        if belief.dim != STATE {
+        // A SLAM belief carries its map's size after the pose.
+        if belief.dim < STATE {
             return Err(ControlError::Dimension {
                 got: belief.dim,
                 expected: STATE,

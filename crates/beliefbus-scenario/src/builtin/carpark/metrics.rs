@@ -19,6 +19,10 @@
 //! - `controls`, `controlled_fraction`: controls computed (not the stage's
 //!   fallback) from odometry-sample beliefs, over odometry samples
 //!   published (controls after laser samples are counted apart);
+//! - `map_landmarks` (SLAM backends): the landmark count of the filter's
+//!   map at the last belief (the belief's component after the pose), and
+//!   `landmarks_seen`: the distinct true landmarks the published scans
+//!   reported (what a perfect map would hold); null for MCL;
 //! - `path_rmse_m`: the true laser point's distance to the data set's path
 //!   (what `pure-pursuit` follows; 0 while replaying it), over the counted
 //!   odometry samples.
@@ -59,7 +63,7 @@ impl Errors {
 }
 
 /// Percentiles of a list of durations (ns) in µs.
-fn timing(ns: &[u64]) -> Value {
+pub(crate) fn timing(ns: &[u64]) -> Value {
     if ns.is_empty() {
         return json!({"n": 0});
     }
@@ -102,6 +106,9 @@ pub struct CarparkMetrics {
     laser_step_ns: Vec<u64>,
     predict_ns: Vec<u64>,
     laser_sample_ns: Vec<u64>,
+    /// Landmarks the scans reported, and the filter's map size.
+    seen: Vec<bool>,
+    map_landmarks: Option<f64>,
 }
 
 fn slot(channel: u32) -> usize {
@@ -140,6 +147,8 @@ impl CarparkMetrics {
             laser_step_ns: Vec::new(),
             predict_ns: Vec::new(),
             laser_sample_ns: Vec::new(),
+            seen: vec![false; sys.carpark.landmarks.len()],
+            map_landmarks: None,
         }
     }
 }
@@ -170,9 +179,14 @@ impl RunMetrics for CarparkMetrics {
                     self.scan_ns[self.scans % SCAN_RING] = t.t_ns;
                     self.scans += 1;
                 }
-                self.features += (0..2)
-                    .filter(|&i| matches!(read_slot(t.y, i, usize::MAX), Ok(Some(_))))
-                    .count() as u64;
+                for i in 0..2 {
+                    if let Ok(Some(o)) = read_slot(t.y, i, usize::MAX) {
+                        self.features += 1;
+                        if let Some(s) = self.seen.get_mut(o.landmark) {
+                            *s = true;
+                        }
+                    }
+                }
             }
             _ => {}
         }
@@ -183,6 +197,9 @@ impl RunMetrics for CarparkMetrics {
         match b.sensor_channel {
             ODOMETRY if b.mean.len() >= STATE && t.x.len() >= STATE => {
                 self.filter.add(b.mean, t.x);
+                if let Some(&m) = b.mean.get(STATE) {
+                    self.map_landmarks = Some(m);
+                }
                 if self.scan_ns[..self.scans.min(SCAN_RING)].contains(&t.t_ns) {
                     self.laser_step_ns.push(b.filter_ns);
                     self.ess_sum += b.ess;
@@ -237,6 +254,9 @@ impl RunMetrics for CarparkMetrics {
             "control_fallbacks": self.fallbacks,
             "controlled_fraction": (self.truths[0] > 0)
                 .then(|| self.controls as f64 / self.truths[0] as f64),
+            "map_landmarks": self.map_landmarks,
+            "landmarks_seen": self.map_landmarks
+                .map(|_| self.seen.iter().filter(|&&s| s).count()),
             "path_rmse_m": (self.dead_reckoning.n > 0)
                 .then(|| (self.path_se / self.dead_reckoning.n as f64).sqrt()),
         })

@@ -26,10 +26,17 @@
 //! - `filter.backend = "implicit-mcl"`: implicit MCL ([`filter`]);
 //! - `filter.backend = "mcl"`: standard MCL, the same models and data;
 //!
-//! both on the map known to the filter; and optionally
+//! both on the map known to the filter;
+//! - `filter.backend = "implicit-slam"`, `"fastslam2"`, `"ekf-slam"`: SLAM,
+//!   the map unknown, the landmark index ignored ([`super::live_slam`]; the
+//!   belief carries the map's landmark count after the pose);
+//!
+//! and optionally
 //! - `control.backend = "pure-pursuit"`: steer along the data set's path
-//!   from the belief ([`control`]); the plant then drives itself with the
-//!   recorded wheel speed and the commanded steering ([`plant`]).
+//!   from the belief ([`control`]), or `control.backend = "path-mppi"`: the
+//!   same path followed by MPPI on the car's kinematics ([`mppi`]); the
+//!   plant then drives itself with the recorded wheel speed and the
+//!   commanded steering ([`plant`]).
 //!
 //! Estimation only by default (`control.backend = "none"`: the vehicle
 //! replays the recorded drive; the control is the steering α). The report's
@@ -45,8 +52,10 @@ pub mod control;
 pub mod encoding;
 pub mod filter;
 pub mod metrics;
+pub mod mppi;
 pub mod plant;
 
+use super::live_slam;
 use crate::backends::{ControlContext, FilterContext};
 use crate::metrics::RunMetrics;
 use crate::model::Dims;
@@ -54,6 +63,9 @@ use crate::{BuildContext, DiscreteSpec, Dynamics, Plant, Scenario, SensorChannel
 use beliefbus_core::control::Controller;
 use beliefbus_core::filter::BayesFilter;
 use beliefbus_localization::carpark::{CarPark, CarParkConfig};
+use beliefbus_localization::mcl::newton::NewtonSettings;
+use beliefbus_localization::slam::assoc::AssocConfig;
+use beliefbus_localization::slam::SlamModel;
 use beliefbus_localization::victoria;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -64,6 +76,8 @@ pub const IMPLICIT: &str = "implicit-mcl";
 pub const STANDARD: &str = "mcl";
 /// Controller: pure pursuit along the path.
 pub const PURE_PURSUIT: &str = "pure-pursuit";
+/// Controller: MPPI along the path.
+pub const MPPI: &str = "path-mppi";
 /// Channel ids.
 pub const ODOMETRY: u32 = 0;
 pub const LASER: u32 = 1;
@@ -109,6 +123,19 @@ pub struct CarparkControlParams {
     pub lookahead_m: f64,
     /// Steering limit (rad); the plant clamps to it too.
     pub max_steering: f64,
+    /// `path-mppi`: sampled steering sequences K.
+    pub mppi_samples: usize,
+    /// `path-mppi`: horizon steps T.
+    pub mppi_horizon_steps: usize,
+    /// `path-mppi`: rollout step Δ (s).
+    pub mppi_dt: f64,
+    /// `path-mppi`: temperature λ (cost units: m² s of squared cross-track
+    /// distance).
+    pub mppi_temperature: f64,
+    /// `path-mppi`: σ of the steering noise (rad).
+    pub mppi_noise_std: f64,
+    /// `path-mppi`: weight r of r α² per second.
+    pub mppi_control_weight: f64,
 }
 
 /// `[carpark.filter]`.
@@ -150,6 +177,12 @@ impl Default for CarparkParams {
             control: CarparkControlParams {
                 lookahead_m: 8.0,
                 max_steering: 0.6,
+                mppi_samples: 128,
+                mppi_horizon_steps: 10,
+                mppi_dt: 0.1,
+                mppi_temperature: 0.1,
+                mppi_noise_std: 0.1,
+                mppi_control_weight: 0.01,
             },
         }
     }
@@ -273,6 +306,32 @@ impl Scenario for CarparkScenario {
     }
 }
 
+impl CarparkSystem {
+    /// The SLAM backends' settings: the data set's vehicle and noise, the
+    /// shared association gates, `[carpark.filter]`'s samples and Newton
+    /// settings.
+    pub fn slam_config(&self) -> live_slam::LiveSlamConfig {
+        let cp = &self.carpark;
+        let f = &self.params.filter;
+        live_slam::LiveSlamConfig {
+            model: SlamModel {
+                ute: cp.ute,
+                motion: cp.motion,
+                laser: cp.laser,
+                assoc: AssocConfig::default(),
+                max_range: self.params.max_range,
+            },
+            particles: f.particles,
+            ess_threshold: f.ess_threshold,
+            newton: NewtonSettings {
+                max_iter: f.newton_max_iter,
+                tol: f.newton_tol,
+            },
+            time_scale: 1.0,
+        }
+    }
+}
+
 impl System for CarparkSystem {
     fn dynamics(&self) -> Dynamics {
         let cp = &self.carpark;
@@ -329,7 +388,9 @@ impl System for CarparkSystem {
         Ok(Box::new(plant::CarparkPlant::new(self, x0, seed)?))
     }
     fn filter_backends(&self) -> Vec<&'static str> {
-        vec![IMPLICIT, STANDARD]
+        let mut v = vec![IMPLICIT, STANDARD];
+        v.extend(live_slam::BACKENDS);
+        v
     }
     fn filter_backend(
         &self,
@@ -339,7 +400,10 @@ impl System for CarparkSystem {
         let implicit = match name {
             IMPLICIT => true,
             STANDARD => false,
-            _ => return None,
+            _ => {
+                return live_slam::LiveSlam::new(name, &self.slam_config(), self.dims(), ctx)
+                    .map(|r| r.map(|f| Box::new(f) as Box<dyn BayesFilter>))
+            }
         };
         Some(
             filter::MclFilter::new(self, ctx, implicit)
@@ -347,15 +411,22 @@ impl System for CarparkSystem {
         )
     }
     fn controller_backends(&self) -> Vec<&'static str> {
-        vec![PURE_PURSUIT]
+        vec![PURE_PURSUIT, MPPI]
     }
     fn controller(
         &self,
         name: &str,
-        _ctx: &ControlContext,
+        ctx: &ControlContext,
     ) -> Option<Result<Box<dyn Controller>, String>> {
-        (name == PURE_PURSUIT)
-            .then(|| control::PurePursuit::new(self).map(|c| Box::new(c) as Box<dyn Controller>))
+        match name {
+            PURE_PURSUIT => {
+                Some(control::PurePursuit::new(self).map(|c| Box::new(c) as Box<dyn Controller>))
+            }
+            MPPI => Some(
+                mppi::MppiFollower::new(self, ctx.seed).map(|c| Box::new(c) as Box<dyn Controller>),
+            ),
+            _ => None,
+        }
     }
     fn run_metrics(&self) -> Option<Box<dyn RunMetrics>> {
         Some(Box::new(metrics::CarparkMetrics::new(self)))
