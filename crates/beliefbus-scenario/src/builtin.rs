@@ -11,6 +11,8 @@ pub mod carpark;
 pub use carpark::CarparkScenario;
 pub mod inventory;
 pub use inventory::InventoryScenario;
+pub mod light_dark;
+pub use light_dark::LightDarkScenario;
 
 /// The drifting ship of paper 001 eq. (10)–(11) with a control force,
 /// range–bearing sensor, waypoint route.

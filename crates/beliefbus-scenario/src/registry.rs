@@ -136,7 +136,8 @@ impl Registry {
             .with::<super::builtin::VanDerPolScenario>()
             .with::<super::builtin::ArxScenario>()
             .with::<super::builtin::CarparkScenario>()
-            .with::<super::builtin::InventoryScenario>();
+            .with::<super::builtin::InventoryScenario>()
+            .with::<super::builtin::LightDarkScenario>();
         r.builtin_only = true;
         r.default = Some(super::builtin::ShipScenario::NAME);
         r
