@@ -238,7 +238,7 @@ fn scenarios_lists_the_registry_with_each_ones_backends() {
     let o = run_elsewhere(&["run", "--scenario", "warp", "--duration", "1"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(
-        stderr(&o).contains("registered: ship, vanderpol, arx, carpark, inventory"),
+        stderr(&o).contains("registered: ship, vanderpol, arx, carpark, inventory, light-dark"),
         "{}",
         stderr(&o)
     );

@@ -15,14 +15,15 @@
 //! naming the `beliefbus solve` command.
 //!
 //! **Swaps.** With `refine_round_s > 0` the controller starts, on its first
-//! [`Controller::prepare`] (after its first published control, so never
-//! at validation), a background thread that keeps solving the same POMDP
-//! from the policy in use (its α-vectors seed the solver's lower bound, so
-//! V̲(b₀) never decreases), demoted to SCHED_OTHER at nice 19 so it cannot
-//! delay the stage's own thread. When a round raises V̲(b₀) it flattens the
+//! [`Controller::prepare`] (which the stage calls when it starts and after
+//! each published control; never at validation), a background thread
+//! that keeps solving the same POMDP from the policy in use (its α-vectors
+//! seed the solver's lower bound, so V̲(b₀) never decreases), demoted to
+//! SCHED_OTHER at nice 19 so that the stage's own thread preempts it. When a round raises V̲(b₀) it flattens the
 //! new policy off the hot path and sends it over a channel; `prepare` —
 //! which the stage calls after publishing a control, off the
-//! sensor→control path — takes it and swaps the table (a pointer swap):
+//! sensor→control path — takes it and swaps the table (a pointer swap;
+//! the replaced table goes back to the solver thread to be freed there):
 //! `compute` never waits for the solver. Each swap raises the policy
 //! version published with the control.
 
@@ -32,13 +33,15 @@ use super::LightDarkSystem;
 use beliefbus_core::belief::Gaussian;
 use beliefbus_core::control::{ControlError, ControlInfo, Controller};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{self, Receiver, TryRecvError};
+use std::sync::mpsc::{self, Receiver, Sender, TryRecvError};
 use std::sync::Arc;
 use std::time::Instant;
 
 /// The background solve's handle.
 struct Background {
     rx: Receiver<Box<FlatPolicy>>,
+    /// Replaced tables go back to the solver thread to be freed there.
+    retire: Sender<Box<FlatPolicy>>,
     stop: Arc<AtomicBool>,
 }
 
@@ -88,7 +91,9 @@ impl PomdpController {
         loop {
             match bg.rx.try_recv() {
                 Ok(p) => {
-                    self.policy = p;
+                    let old = std::mem::replace(&mut self.policy, p);
+                    // Freed by the solver thread (or here if it has ended).
+                    let _ = bg.retire.send(old);
                     self.version += 1;
                     swapped = true;
                 }
@@ -109,15 +114,16 @@ impl PomdpController {
         }
         self.started = true;
         let (tx, rx) = mpsc::channel();
+        let (retire, retired) = mpsc::channel();
         let stop = Arc::new(AtomicBool::new(false));
         let sys = self.sys.clone();
         let first = (*self.policy).clone();
         let flag = stop.clone();
         let spawned = std::thread::Builder::new()
             .name("pomdp-solve".into())
-            .spawn(move || background_solve(sys, first, tx, flag));
+            .spawn(move || background_solve(sys, first, tx, retired, flag));
         if spawned.is_ok() {
-            self.background = Some(Background { rx, stop });
+            self.background = Some(Background { rx, retire, stop });
         }
     }
 
@@ -164,7 +170,8 @@ fn demote_this_thread() {
 fn background_solve(
     sys: LightDarkSystem,
     first: FlatPolicy,
-    tx: mpsc::Sender<Box<FlatPolicy>>,
+    tx: Sender<Box<FlatPolicy>>,
+    retired: Receiver<Box<FlatPolicy>>,
     stop: Arc<AtomicBool>,
 ) {
     demote_this_thread();
@@ -189,6 +196,8 @@ fn background_solve(
         if stop.load(Ordering::Relaxed) {
             return;
         }
+        // Free the tables the controller replaced.
+        while retired.try_recv().is_ok() {}
         let opts = sys.solve_options(p.refine_round_s, 1, seed.clone());
         let Ok(sol) = beliefbus_pomdp::solve(&cp.pomdp, &opts, |_| {}) else {
             return;

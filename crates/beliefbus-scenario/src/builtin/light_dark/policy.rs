@@ -56,17 +56,35 @@ impl FlatPolicy {
     /// no allocation.
     #[inline]
     pub fn act(&self, b: &[f64]) -> usize {
+        self.actions[self.best(b).0]
+    }
+
+    /// argmax_α α·b and its value. Four running sums per product (the
+    /// entries in groups of four) so the multiply-adds do not wait on one
+    /// another; the order of the additions, hence the last bits, differ
+    /// from a plain left-to-right sum.
+    #[inline]
+    pub fn best(&self, b: &[f64]) -> (usize, f64) {
+        let b = &b[..self.n];
+        let (b4, b_tail) = b.split_at(self.n - self.n % 4);
         let mut best = (0, f64::NEG_INFINITY);
         for (k, alpha) in self.alphas.chunks_exact(self.n).enumerate() {
-            let mut x = 0.0;
-            for (a, p) in alpha.iter().zip(b) {
+            let (a4, a_tail) = alpha.split_at(b4.len());
+            let mut s = [0.0; 4];
+            for (a, p) in a4.chunks_exact(4).zip(b4.chunks_exact(4)) {
+                for j in 0..4 {
+                    s[j] += a[j] * p[j];
+                }
+            }
+            let mut x = (s[0] + s[1]) + (s[2] + s[3]);
+            for (a, p) in a_tail.iter().zip(b_tail) {
                 x += a * p;
             }
             if x > best.1 {
                 best = (k, x);
             }
         }
-        self.actions[best.0]
+        best
     }
 }
 

@@ -105,7 +105,7 @@ fn the_filter_is_the_chain_pomdps_belief_update() {
 }
 
 #[test]
-fn the_flat_lookup_picks_the_policys_action() {
+fn the_flat_lookup_picks_the_policys_best_vector() {
     let sys = system(|_| {});
     let (pol, lower) = solved(&sys, 1.0);
     let flat = FlatPolicy::new(&pol, 20, lower);
@@ -117,7 +117,21 @@ fn the_flat_lookup_picks_the_policys_action() {
             .for_each(|v| *v = rng.random::<f64>().powi(4));
         let t: f64 = b.iter().sum();
         b.iter_mut().for_each(|v| *v /= t);
-        assert_eq!(flat.act(&b[..20]), pol.action(&b));
+        // The same maximum as the plain sum over all 21 entries (up to
+        // the last bits of a differently ordered sum), with the action of
+        // the vector that attains it.
+        let (k, v) = flat.best(&b[..20]);
+        let (k_ref, v_ref) = pol.best_dense(&b);
+        assert!(
+            (v - v_ref).abs() <= 1e-9 * v_ref.abs().max(1.0),
+            "{v} vs {v_ref}"
+        );
+        let exact: f64 = pol.vectors[k].iter().zip(&b).map(|(a, p)| a * p).sum();
+        assert!((exact - v_ref).abs() <= 1e-9 * v_ref.abs().max(1.0));
+        assert_eq!(flat.act(&b[..20]), pol.actions[k]);
+        if k == k_ref {
+            assert_eq!(flat.act(&b[..20]), pol.action(&b));
+        }
     }
 }
 
