@@ -19,8 +19,9 @@
 //! each published control; never at validation), a background thread
 //! that keeps solving the same POMDP from the policy in use (its α-vectors
 //! seed the solver's lower bound, so V̲(b₀) never decreases), demoted to
-//! SCHED_OTHER at nice 19 so that the stage's own thread preempts it. When a round raises V̲(b₀) it flattens the
-//! new policy off the hot path and sends it over a channel; `prepare` —
+//! SCHED_OTHER at nice 19 and moved off the control thread's core. When a
+//! round raises V̲(b₀) it flattens the new policy (dropping dominated
+//! vectors) off the hot path and sends it over a channel; `prepare` —
 //! which the stage calls after publishing a control, off the
 //! sensor→control path — takes it and swaps the table (a pointer swap;
 //! the replaced table goes back to the solver thread to be freed there):
@@ -119,9 +120,14 @@ impl PomdpController {
         let sys = self.sys.clone();
         let first = (*self.policy).clone();
         let flag = stop.clone();
+        // SAFETY: sched_getcpu has no preconditions.
+        let core = unsafe { libc::sched_getcpu() };
         let spawned = std::thread::Builder::new()
             .name("pomdp-solve".into())
-            .spawn(move || background_solve(sys, first, tx, retired, flag));
+            .spawn(move || {
+                demote_this_thread(core);
+                background_solve(sys, first, tx, retired, flag)
+            });
         if spawned.is_ok() {
             self.background = Some(Background { rx, retire, stop });
         }
@@ -154,14 +160,32 @@ impl Drop for PomdpController {
 }
 
 /// Lower the calling thread to SCHED_OTHER, nice 19 (Linux: both apply
-/// to the calling thread only). Failure leaves it as it was.
-fn demote_this_thread() {
+/// to the calling thread only), and move it off `core` (the control
+/// thread's) onto the machine's other cores, so the solver neither delays
+/// the control thread nor evicts its table from that core's caches.
+/// Failures leave the thread as it was.
+fn demote_this_thread(core: i32) {
     let param = libc::sched_param { sched_priority: 0 };
-    // SAFETY: sched_setscheduler / setpriority on the calling thread (0)
-    // with a valid parameter; lowering needs no privilege.
+    // SAFETY: sched_setscheduler / setpriority / sched_setaffinity on the
+    // calling thread (0) with valid arguments; cpu_set_t is plain data.
     unsafe {
         libc::sched_setscheduler(0, libc::SCHED_OTHER, &param);
         libc::setpriority(libc::PRIO_PROCESS, 0, 19);
+        if core < 0 {
+            return;
+        }
+        let online = libc::sysconf(libc::_SC_NPROCESSORS_ONLN).max(0) as usize;
+        let mut others: libc::cpu_set_t = std::mem::zeroed();
+        let mut any = false;
+        for c in 0..online.min(libc::CPU_SETSIZE as usize) {
+            if c != core as usize {
+                libc::CPU_SET(c, &mut others);
+                any = true;
+            }
+        }
+        if any {
+            libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &others);
+        }
     }
 }
 
@@ -174,7 +198,6 @@ fn background_solve(
     retired: Receiver<Box<FlatPolicy>>,
     stop: Arc<AtomicBool>,
 ) {
-    demote_this_thread();
     let cp = sys.pomdp.clone();
     let n = cp.n_chain();
     let ns = cp.pomdp.n_states();

@@ -38,18 +38,43 @@ pub struct FlatPolicy {
 
 impl FlatPolicy {
     /// From a policy over the POMDP's states (the chain's n, then the
-    /// absorbing one).
+    /// absorbing one), without the vectors another one dominates on the
+    /// chain states (α_j ≤ α_k everywhere: α_j is never needed for the
+    /// maximum, so dropping it changes no lookup's value; of equal vectors
+    /// the first is kept). O(K² n), done where the policy is prepared,
+    /// never on the lookup path.
     pub fn new(p: &AlphaPolicy, n: usize, lower_b0: f64) -> Self {
-        let mut alphas = Vec::with_capacity(p.vectors.len() * n);
-        for v in &p.vectors {
-            alphas.extend_from_slice(&v[..n]);
+        let vs = &p.vectors;
+        let dominated = |j: usize| {
+            (0..vs.len()).any(|k| {
+                k != j
+                    && vs[k][..n].iter().zip(&vs[j][..n]).all(|(a, b)| a >= b)
+                    && (k < j || vs[k][..n] != vs[j][..n])
+            })
+        };
+        let mut alphas = Vec::with_capacity(vs.len() * n);
+        let mut actions = Vec::with_capacity(vs.len());
+        for (j, v) in vs.iter().enumerate() {
+            if !dominated(j) {
+                alphas.extend_from_slice(&v[..n]);
+                actions.push(p.actions[j]);
+            }
         }
         Self {
             n,
             alphas,
-            actions: p.actions.clone(),
+            actions,
             lower_b0,
         }
+    }
+
+    /// Vectors in the table.
+    pub fn len(&self) -> usize {
+        self.actions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.actions.is_empty()
     }
 
     /// The action of argmax_α α·b (`b` has n entries): K·n multiply-adds,
@@ -294,6 +319,7 @@ pub fn solve(sys: &LightDarkSystem, req: SolveRequest) -> Result<SolveOutcome, S
             ("upper_b0".into(), format!("{:.3}", sol.upper)),
             ("converged".into(), sol.converged.to_string()),
             ("vectors".into(), sol.policy.vectors.len().to_string()),
+            ("lookup_vectors".into(), flat.len().to_string()),
             ("trials".into(), sol.trials.to_string()),
             ("period_s".into(), format!("{:.4}", cp.period)),
             ("lookup_ns".into(), format!("{lookup_ns:.0}")),
