@@ -314,7 +314,7 @@ fn bad_parameters_are_refused_naming_the_key() {
     let bad = |f: fn(&mut LightDarkParams)| {
         let mut p = LightDarkParams::default();
         f(&mut p);
-        LightDarkSystem::new(p).err().expect("refused")
+        LightDarkSystem::new(p).expect_err("refused")
     };
     assert!(bad(|p| p.states = 60).contains("states"));
     assert!(bad(|p| p.epsilon = 0.0).contains("epsilon"));
