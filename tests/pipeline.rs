@@ -238,7 +238,9 @@ fn scenarios_lists_the_registry_with_each_ones_backends() {
     let o = run_elsewhere(&["run", "--scenario", "warp", "--duration", "1"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(
-        stderr(&o).contains("registered: ship, vanderpol, arx, carpark, inventory, victoria-park"),
+        stderr(&o).contains(
+            "registered: ship, vanderpol, arx, carpark, inventory, victoria-park, light-dark"
+        ),
         "{}",
         stderr(&o)
     );

@@ -14,6 +14,8 @@ pub use inventory::InventoryScenario;
 pub mod live_slam;
 pub mod victoria_park;
 pub use victoria_park::VictoriaParkScenario;
+pub mod light_dark;
+pub use light_dark::LightDarkScenario;
 
 /// The drifting ship of paper 001 eq. (10)–(11) with a control force,
 /// range–bearing sensor, waypoint route.

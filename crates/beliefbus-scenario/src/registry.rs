@@ -137,7 +137,8 @@ impl Registry {
             .with::<super::builtin::ArxScenario>()
             .with::<super::builtin::CarparkScenario>()
             .with::<super::builtin::InventoryScenario>()
-            .with::<super::builtin::VictoriaParkScenario>();
+            .with::<super::builtin::VictoriaParkScenario>()
+            .with::<super::builtin::LightDarkScenario>();
         r.builtin_only = true;
         r.default = Some(super::builtin::ShipScenario::NAME);
         r
