@@ -84,7 +84,7 @@ pub fn steady_posterior<M: SdeJacobians + ?Sized>(
         DMatrix::from_column_slice(d, k, &f[..d * k]),
         DMatrix::from_column_slice(m, d, &h[..m * d]),
         std[..m].to_vec(),
-        model.bounds().clone(),
+        *model.bounds(),
     );
     let disc = lin.discretize(dt);
     let p = riccati(&disc.ad, &disc.qd, &lin.c, &std[..m])?;
