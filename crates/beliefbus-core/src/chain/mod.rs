@@ -46,6 +46,7 @@ pub mod prefetch;
 pub mod retire;
 pub use crate::model::sample;
 pub mod snapshot;
+pub mod steady;
 pub mod storage;
 
 pub use build::{BatchBuild, Chain, ChainStats};

@@ -202,6 +202,15 @@ pub struct StageStats {
     /// kept less than the collapse fraction of their effective support or
     /// whose weights all vanished.
     pub ess_collapses: u64,
+    /// Refine: moving-frame versions built, their rows, the rows meeting
+    /// their matched moment equations exactly and the rows fitted by least
+    /// squares (`chain::diagnostics::row_report`), and versions published
+    /// again as new lineages (steady placement).
+    pub chain_built: u64,
+    pub chain_rows: u64,
+    pub chain_rows_exact: u64,
+    pub chain_rows_least_squares: u64,
+    pub chain_recentred: u64,
 }
 
 impl Default for StageStats {
@@ -245,6 +254,11 @@ impl Default for StageStats {
             chain_fallback_p99_ns: 0,
             chain_fallback_untethered: 0,
             ess_collapses: 0,
+            chain_built: 0,
+            chain_rows: 0,
+            chain_rows_exact: 0,
+            chain_rows_least_squares: 0,
+            chain_recentred: 0,
         }
     }
 }

@@ -22,6 +22,7 @@
 mod backend;
 pub mod limits;
 pub mod load;
+pub mod placement;
 pub mod reference;
 pub mod restart;
 pub mod stale;
@@ -400,6 +401,17 @@ pub struct RefineConfig {
     /// u₀ = 0. The filter takes a control's effect relative to f(x, u₀).
     #[serde(default)]
     pub reference_control: Vec<f64>,
+    /// Where moving-frame versions put their states: "belief" or "steady".
+    #[serde(default)]
+    pub placement: placement::Placement,
+    /// Steady placement: the latest version is published again as a new
+    /// lineage this often (ms); 0: only fresh versions.
+    #[serde(default = "default_recenter")]
+    pub recenter_ms: f64,
+}
+
+fn default_recenter() -> f64 {
+    50.0
 }
 
 fn default_refine_period() -> f64 {
@@ -452,6 +464,8 @@ impl Default for RefineConfig {
             knn_c: default_knn_c(),
             moving_frame: false,
             reference_control: vec![],
+            placement: placement::Placement::Belief,
+            recenter_ms: default_recenter(),
         }
     }
 }

@@ -49,7 +49,7 @@ impl RefineConfig {
                 "must be between 50 and refine.max_states",
             ));
         }
-        Ok(())
+        super::placement::validate(self)
     }
 }
 
@@ -431,15 +431,22 @@ impl PipelineConfig {
                 Err(e) => return Err(ConfigError::new("filter", e.to_string())),
             }
         }
+        // Singular F Fᵀ (noise through the velocities only): the moving
+        // frame's versions must carry the posterior's correlations, which
+        // only the steady placement draws (docs/degenerate-chains.md).
+        let steady = self.refine.moving_frame
+            && self.refine.placement == super::placement::Placement::Steady;
         if f.backend == FilterBackend::Chain
+            && !steady
             && !crate::scenario::full_rank_diffusion(model, &f.prior_mean)
         {
             return Err(ConfigError::new(
                 "filter.backend",
                 format!(
-                    "scenario {}: the chain filter needs noise on every state coordinate \
-                     (F Fᵀ of full rank), and this model's diffusion is singular at the prior \
-                     mean; use \"pf\", \"ekf\" or \"ukf\"",
+                    "scenario {}: this model's diffusion is singular at the prior mean (noise \
+                     on some coordinates only); the chain filter then needs \
+                     refine.moving_frame = true and refine.placement = \"steady\", or use \
+                     \"pf\", \"ekf\" or \"ukf\"",
                     self.run.scenario
                 ),
             ));

@@ -214,6 +214,10 @@ pub struct ChainMetrics {
     pub guard: chain_guard::GuardCounts,
     /// The fallback's predict + update time per observation (filter).
     pub fallback_cost: LatencyHist,
+    /// Refine: row diagnostics of the versions built, and versions
+    /// published again as new lineages (steady placement).
+    pub rows: refine::placement::RowCounts,
+    pub recentred: u64,
 }
 
 impl Metrics {
@@ -334,6 +338,11 @@ impl Metrics {
             chain_fallback_p50_ns: self.chain.fallback_cost.quantile(0.5),
             chain_fallback_p99_ns: self.chain.fallback_cost.quantile(0.99),
             chain_fallback_untethered: self.chain.guard.untethered,
+            chain_built: self.chain.rows.versions,
+            chain_rows: self.chain.rows.rows,
+            chain_rows_exact: self.chain.rows.exact,
+            chain_rows_least_squares: self.chain.rows.least_squares,
+            chain_recentred: self.chain.recentred,
             dropped_by_reason: self.dropped_by_reason,
             ..StageStats::default()
         };

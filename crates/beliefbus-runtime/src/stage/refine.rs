@@ -77,6 +77,9 @@ use std::time::{Duration, Instant};
 #[path = "refine_resume.rs"]
 pub mod resume;
 
+#[path = "refine_placement.rs"]
+pub mod placement;
+
 /// Points on the belief's predicted path that retirement measures from.
 const PATH_POINTS: usize = 4;
 
@@ -134,6 +137,12 @@ pub struct Refiner {
     pub frames: u64,
     /// Insertions rejected by the chain (e.g. duplicate coordinates).
     pub failed_inserts: u64,
+    /// Row diagnostics summed over the moving-frame versions built.
+    pub rows: placement::RowCounts,
+    /// Steady placement: versions published again as new lineages, and
+    /// versions drawn around the belief because P∞ could not be solved.
+    pub recentred: u64,
+    pub steady_failures: u64,
     /// States retired so far.
     pub retired: u64,
 }
@@ -168,6 +177,9 @@ impl Refiner {
             control: None,
             frames: 0,
             failed_inserts: 0,
+            rows: placement::RowCounts::default(),
+            recentred: 0,
+            steady_failures: 0,
             retired: 0,
         })
     }
@@ -351,14 +363,9 @@ impl Refiner {
                 } else {
                     self.cfg.refine.max_states
                 };
-                FrameJob::start(
-                    &self.model,
-                    &self.belief,
-                    n,
-                    &self.frame_build(),
-                    &mut self.rng,
-                )
-                .map_err(build)?
+                let around = self.placement_belief();
+                FrameJob::start(&self.model, &around, n, &self.frame_build(), &mut self.rng)
+                    .map_err(build)?
             }
         };
         let mut job = job;
@@ -368,6 +375,7 @@ impl Refiner {
         }
         let (c, eq) = job.finish().map_err(build)?;
         self.eq = eq;
+        self.rows.add(&c);
         self.chain = Some(c);
         self.frames += 1;
         self.ready = true;

@@ -67,6 +67,12 @@ pub fn run_with(
     let mut staged: Option<(usize, u64, usize, f64)> = None;
     let mut staged_buf: Vec<u64> = Vec::with_capacity(ports.chain.max_len());
     let mut stage_cost = Duration::ZERO;
+    // Steady placement: the last version sent (its words stay in
+    // staged_buf) is sent again as a new lineage every recenter_ms.
+    let recentre_ns = (cfg.refine.recenter_ms * 1e6) as u64;
+    let recentres = refiner.as_ref().is_some_and(|r| r.recentres());
+    let mut sent_len = 0usize;
+    let mut next_recentre = u64::MAX;
     let belief = &ports.belief;
     let control = &ports.control;
     let chain_pub = &mut ports.chain;
@@ -104,7 +110,8 @@ pub fn run_with(
                 || refiner.building()
                 || refiner.version_ready()
                 || staged.is_some()
-                || now >= next_publish;
+                || now >= next_publish
+                || (recentres && now >= next_recentre);
             if now >= next_work && due {
                 next_work = now + period_ns;
                 let t_in = clock.now_ns();
@@ -163,6 +170,15 @@ pub fn run_with(
                     staged = Some((n, refiner.version(), refiner.len(), refiner.delta()));
                     stage_cost = Duration::from_nanos(clock.now_ns().saturating_sub(t_pub));
                 }
+                if !complete && staged.is_none() && recentres && sent_len > 0 {
+                    let t_pub = clock.now_ns();
+                    if t_pub >= next_recentre {
+                        refiner.recentre(&mut staged_buf[..sent_len], t_pub)?;
+                        ckpt.begin(refiner.next_id(), &staged_buf[..sent_len]);
+                        staged =
+                            Some((sent_len, refiner.version(), refiner.len(), refiner.delta()));
+                    }
+                }
                 if let Some((n, version, states, delta)) = staged {
                     if ckpt.is_durable() {
                         chain_pub.publish_with(n, |buf| {
@@ -170,9 +186,13 @@ pub fn run_with(
                             Ok::<_, StageError>(n)
                         })??;
                         staged = None;
+                        sent_len = n;
+                        next_recentre = clock.now_ns().saturating_add(recentre_ns);
                         m.chain.versions = version;
                         m.chain.states = states as u64;
                         m.chain.delta_s = delta;
+                        m.chain.rows = refiner.rows;
+                        m.chain.recentred = refiner.recentred;
                     }
                 }
                 // The whole round counts against the budget: building,

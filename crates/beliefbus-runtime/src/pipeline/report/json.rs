@@ -166,6 +166,19 @@ pub struct ChainReport {
     pub fallback_cost_p50_us: Option<f64>,
     pub fallback_cost_p99_us: Option<f64>,
     pub stale_max_ms: Option<f64>,
+    /// Refine: versions built, their rows, rows meeting their matched
+    /// moment equations exactly, rows fitted by least squares, and
+    /// versions published again as new lineages (steady placement).
+    #[serde(default)]
+    pub built: u64,
+    #[serde(default)]
+    pub rows: u64,
+    #[serde(default)]
+    pub rows_exact: u64,
+    #[serde(default)]
+    pub rows_least_squares: u64,
+    #[serde(default)]
+    pub recentred: u64,
 }
 
 /// `streams`: the observation channel's books (null without both stages).
@@ -447,6 +460,11 @@ impl ReportInput {
                 .filter(|s| s.chain_fallback_p99_ns > 0)
                 .map(|s| us(s.chain_fallback_p99_ns)),
             stale_max_ms: installed.map(|s| s.chain_stale_max_ns as f64 * 1e-6),
+            built: r.map(|s| s.chain_built).unwrap_or(0),
+            rows: r.map(|s| s.chain_rows).unwrap_or(0),
+            rows_exact: r.map(|s| s.chain_rows_exact).unwrap_or(0),
+            rows_least_squares: r.map(|s| s.chain_rows_least_squares).unwrap_or(0),
+            recentred: r.map(|s| s.chain_recentred).unwrap_or(0),
         }
     }
 }

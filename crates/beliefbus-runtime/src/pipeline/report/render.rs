@@ -130,6 +130,12 @@ impl ReportInput {
                 us(c.chain_fallback_p50_ns),
                 us(c.chain_fallback_p99_ns)
             ));
+            if let Some(r) = self.stats(StageKind::Refine) {
+                out.push_str(&format!(
+                    "chain rows: {} versions built, {} rows, {} exact, {} least-squares; {} versions re-published as new lineages\n",
+                    r.chain_built, r.chain_rows, r.chain_rows_exact, r.chain_rows_least_squares, r.chain_recentred
+                ));
+            }
         }
         if let Some(p) = self.stats(StageKind::Plant) {
             if p.controls_received > 0 {
