@@ -167,6 +167,7 @@ fn spec_for(
         start,
         row_flush: 1e-9,
         obs_flush: 1e-6,
+        match_mean: false,
         terminal: Some(Terminal {
             reward: (0..chain.len())
                 .map(|i| {

@@ -18,7 +18,13 @@
 //! V⁰ ≤ H V⁰ (H shifts constants by γ), so the iterates H^m V⁰ increase
 //! towards the controller's value and every one is a lower bound of V* —
 //! a valid initial lower bound for [`crate::solve`] whenever the loop
-//! stops.
+//! stops. σ is computed once, from the moved vectors, and then held: H is
+//! the evaluation operator of one fixed controller, monotone and linear.
+//! Re-choosing σ from each iterate (as an earlier version did) changes the
+//! operator between iterations, so V ≤ H V no longer carries over and the
+//! vectors can overstate their value; the greedy policy then picks a
+//! carried vector whose plan it never follows — on the light-dark chains
+//! it kept u = 0 for ever and scored 0.
 
 use super::ChainPomdp;
 use crate::policy::AlphaPolicy;
@@ -76,31 +82,31 @@ pub fn carry(
     let no = p.n_obs();
     let mut h = vec![vec![0.0; ns]; v.len()];
     let mut w = vec![0.0; ns];
-    let apply = |v: &[Vec<f64>], h: &mut [Vec<f64>], w: &mut [f64]| {
-        // σ(o): best node at the belief ∝ Q(o|·) (the same Q for every
-        // action of a chain POMDP; taken from the first action).
-        let q = &p.obs[0];
-        let mut score = vec![vec![0.0; v.len()]; no];
-        for s in 0..ns {
-            let (os, qs) = q.row(s);
-            for (&o, &qv) in os.iter().zip(qs) {
-                for (k, vk) in v.iter().enumerate() {
-                    score[o as usize][k] += qv * vk[s];
-                }
+    // σ(o): best node at the belief ∝ Q(o|·) (the same Q for every action
+    // of a chain POMDP; taken from the first action), fixed from here on.
+    let q = &p.obs[0];
+    let mut score = vec![vec![0.0; v.len()]; no];
+    for s in 0..ns {
+        let (os, qs) = q.row(s);
+        for (&o, &qv) in os.iter().zip(qs) {
+            for (k, vk) in v.iter().enumerate() {
+                score[o as usize][k] += qv * vk[s];
             }
         }
-        let sigma: Vec<usize> = score
-            .iter()
-            .map(|sc| {
-                sc.iter()
-                    .enumerate()
-                    .fold(
-                        (0, f64::NEG_INFINITY),
-                        |b, (k, &x)| if x > b.1 { (k, x) } else { b },
-                    )
-                    .0
-            })
-            .collect();
+    }
+    let sigma: Vec<usize> = score
+        .iter()
+        .map(|sc| {
+            sc.iter()
+                .enumerate()
+                .fold(
+                    (0, f64::NEG_INFINITY),
+                    |b, (k, &x)| if x > b.1 { (k, x) } else { b },
+                )
+                .0
+        })
+        .collect();
+    let apply = |v: &[Vec<f64>], h: &mut [Vec<f64>], w: &mut [f64]| {
         for s in 0..ns {
             let (os, qs) = q.row(s);
             w[s] = os
@@ -132,8 +138,8 @@ pub fn carry(
     v.iter_mut().flatten().for_each(|x| *x -= shift);
     loop {
         apply(&v, &mut h, &mut w);
-        // Keep each vector at least its previous iterate (H is monotone
-        // from below, so this only guards rounding).
+        // Keep each vector at least its previous iterate (the iterates
+        // increase, so this only guards rounding).
         let mut change = 0.0f64;
         for (vk, hk) in v.iter_mut().zip(&h) {
             for (x, &y) in vk.iter_mut().zip(hk) {
