@@ -109,10 +109,8 @@ impl ControlKernel {
             } else {
                 None
             };
-            if outside.is_none() && match_mean {
-                if tilt_to_mean(d, &dz, &target, &mut p) {
-                    repaired += 1;
-                }
+            if outside.is_none() && match_mean && tilt_to_mean(d, &dz, &target, &mut p) {
+                repaired += 1;
             }
             if let Some(v) = outside {
                 if let Some(j) = nearest_beyond(chain, i, &target, &v) {
