@@ -153,5 +153,43 @@ pub fn carry(
             break;
         }
     }
-    v.into_iter().zip(acts).collect()
+    keep_useful(&next.pomdp.start, v, acts, MAX_CARRIED)
+}
+
+/// At most this many carried vectors: the solver evaluates every vector
+/// at every belief it touches, and a previous solve kept unpruned can hold
+/// thousands (a 75-state light-dark policy's slowed the 150-state solve so
+/// much that its bounds hardly moved in 60 s and the policy scored 0).
+pub const MAX_CARRIED: usize = 64;
+
+/// The vectors best at b₀ or at some state (corner belief), then by value
+/// at b₀, at most `cap` of them. Any subset of valid vectors is valid.
+fn keep_useful(
+    b0: &[f64],
+    v: Vec<Vec<f64>>,
+    acts: Vec<usize>,
+    cap: usize,
+) -> Vec<(Vec<f64>, usize)> {
+    let at_b0: Vec<f64> = v
+        .iter()
+        .map(|vk| vk.iter().zip(b0).map(|(a, b)| a * b).sum())
+        .collect();
+    let argmax = |f: &dyn Fn(usize) -> f64| {
+        (0..v.len())
+            .map(|k| (k, f(k)))
+            .fold((0, f64::NEG_INFINITY), |b, x| if x.1 > b.1 { x } else { b })
+            .0
+    };
+    let mut keep = vec![argmax(&|k| at_b0[k])];
+    let ns = v.first().map_or(0, Vec::len);
+    for s in 0..ns {
+        let k = argmax(&|k| v[k][s]);
+        if !keep.contains(&k) {
+            keep.push(k);
+        }
+    }
+    keep[1..].sort_by(|&a, &b| at_b0[b].total_cmp(&at_b0[a]));
+    keep.truncate(cap);
+    let mut out: Vec<Option<(Vec<f64>, usize)>> = v.into_iter().zip(acts).map(Some).collect();
+    keep.into_iter().filter_map(|k| out[k].take()).collect()
 }
