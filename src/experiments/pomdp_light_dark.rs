@@ -167,6 +167,7 @@ fn spec_for(
         start,
         row_flush: 1e-9,
         obs_flush: 1e-6,
+        match_mean: false,
         terminal: Some(Terminal {
             reward: (0..chain.len())
                 .map(|i| {
@@ -375,7 +376,7 @@ pub fn two_d(
         let secs = solve_s[k.min(solve_s.len() - 1)];
         let initial = match (&prev, fresh) {
             (Some((pcp, ppol)), false) => {
-                warm::carry(pcp, ppol, &cp, Duration::from_secs_f64(0.1 * secs), 1e-3)
+                warm::carry(pcp, ppol, &cp, Duration::from_secs_f64(0.02 * secs), 1e-3)
             }
             _ => Vec::new(),
         };

@@ -4,7 +4,7 @@ fn ev(runs: usize, seed: u64) -> Eval {
     Eval {
         alpha: 0.05,
         horizon_s: 30.0,
-        substeps: 5,
+        sim_dt: 0.002,
         runs,
         seed,
     }

@@ -99,6 +99,11 @@ pub struct ChainPomdpSpec {
     pub row_flush: f64,
     /// Drop Q(o|z) below this fraction of the row's largest entry.
     pub obs_flush: f64,
+    /// Make every row consistent in the mean, E[Δξ] = f Δt ([`rows`]
+    /// module doc: one-sided Near sets repaired, weights tilted); false
+    /// keeps the chain's Near sets and Gaussian weights, so that u₀'s rows
+    /// are the chain filter's.
+    pub match_mean: bool,
     pub terminal: Option<Terminal>,
 }
 
@@ -258,7 +263,7 @@ pub fn build<M: SdeModel>(
     let kernels: Vec<rows::ControlKernel> = spec
         .controls
         .iter()
-        .map(|u| rows::ControlKernel::new(chain, model, u))
+        .map(|u| rows::ControlKernel::with_mean(chain, model, u, spec.match_mean))
         .collect();
     let min_dt = kernels
         .iter()

@@ -40,6 +40,7 @@ fn spec(n: usize, controls: &[f64], delta_max: f64, decision_min: f64) -> ChainP
         start: vec![1.0 / n as f64; n],
         row_flush: 0.0,
         obs_flush: 0.0,
+        match_mean: false,
         terminal: None,
     }
 }
@@ -206,8 +207,92 @@ fn carried_solution_is_a_lower_bound_on_the_refined_problem() {
     // Far better than the worst case min R/(1−γ).
     let (lo, _) = p2.pomdp.reward_range();
     assert!(v0 > 0.5 * lo / (1.0 - p2.pomdp.discount));
+    // The carried set alone, used greedily, earns at least what it claims
+    // at b₀ (the controller is evaluated with a fixed successor map; with
+    // a map re-chosen per iteration the claim can exceed the earnings).
+    let carried_policy = crate::AlphaPolicy {
+        n_states: p2.pomdp.n_states(),
+        n_actions: p2.pomdp.n_actions(),
+        vectors: carried.iter().map(|c| c.0.clone()).collect(),
+        actions: carried.iter().map(|c| c.1).collect(),
+    };
+    let sim_opts = crate::SimulateOptions {
+        runs: 2000,
+        seed: 9,
+        precision: 1e-4,
+        threads: 1,
+    };
+    let r = crate::simulate(&p2.pomdp, &carried_policy, &sim_opts).expect("simulate");
+    assert!(
+        r.mean >= v0 - 3.0 * r.std_err,
+        "carried policy earns {} ± {} below its claim {v0}",
+        r.mean,
+        r.std_err
+    );
     opts.initial_lower = carried;
     let warm = solve(&p2.pomdp, &opts, |_| {}).expect("warm");
     assert!(warm.lower >= v0 - 1e-12);
     assert!(warm.lower <= warm.upper + 1e-9);
+    // The warm-started policy earns its lower bound, and never less than
+    // the cold start's lower bound allows (both within the simulation's
+    // error).
+    let rw = crate::simulate(&p2.pomdp, &warm.policy, &sim_opts).expect("simulate");
+    assert!(
+        rw.mean >= warm.lower - 3.0 * rw.std_err,
+        "warm policy earns {} ± {} below its bound {}",
+        rw.mean,
+        rw.std_err,
+        warm.lower
+    );
+    assert!(
+        rw.mean >= cold.lower.min(warm.lower) - 3.0 * rw.std_err,
+        "warm policy earns {} ± {} below the cold lower bound {}",
+        rw.mean,
+        rw.std_err,
+        cold.lower
+    );
+}
+
+#[test]
+fn solver_drops_supplied_vectors_that_no_plan_can_have() {
+    let m = lqg(0.3);
+    let obs = GaussianObservation {
+        model: &m,
+        std: vec![0.3],
+    };
+    let c = chain(&m, 20, 4);
+    let p = build(
+        &c,
+        &m,
+        &obs,
+        &quadratic,
+        &spec(20, &[0.0, 0.5, -0.5], 1.0, 0.2),
+    )
+    .expect("p");
+    let opts = SolveOptions {
+        precision: 1e-3,
+        time_limit: Some(Duration::from_millis(300)),
+        threads: 1,
+        ..Default::default()
+    };
+    let honest = solve(&p.pomdp, &opts, |_| {}).expect("solve");
+    // Rewards are costs (≤ 0): a vector of zeros is above every plan's
+    // value, and would end the solve at once with a false lower bound.
+    let false_bound = SolveOptions {
+        initial_lower: vec![(vec![0.0; p.pomdp.n_states()], 0)],
+        ..opts.clone()
+    };
+    let sol = solve(&p.pomdp, &false_bound, |_| {}).expect("solve");
+    assert!(sol.lower <= sol.upper + 1e-9);
+    assert!(
+        sol.lower < -1e-3,
+        "lower bound {} kept the false vector",
+        sol.lower
+    );
+    assert!(
+        sol.lower <= honest.upper + 1e-9,
+        "lower {} above the honest upper bound {}",
+        sol.lower,
+        honest.upper
+    );
 }

@@ -18,7 +18,13 @@
 //! V⁰ ≤ H V⁰ (H shifts constants by γ), so the iterates H^m V⁰ increase
 //! towards the controller's value and every one is a lower bound of V* —
 //! a valid initial lower bound for [`crate::solve`] whenever the loop
-//! stops.
+//! stops. σ is computed once, from the moved vectors, and then held: H is
+//! the evaluation operator of one fixed controller, monotone and linear.
+//! Re-choosing σ from each iterate (as an earlier version did) changes the
+//! operator between iterations, so V ≤ H V no longer carries over and the
+//! vectors can overstate their value; the greedy policy then picks a
+//! carried vector whose plan it never follows — on the light-dark chains
+//! it kept u = 0 for ever and scored 0.
 
 use super::ChainPomdp;
 use crate::policy::AlphaPolicy;
@@ -76,31 +82,31 @@ pub fn carry(
     let no = p.n_obs();
     let mut h = vec![vec![0.0; ns]; v.len()];
     let mut w = vec![0.0; ns];
-    let apply = |v: &[Vec<f64>], h: &mut [Vec<f64>], w: &mut [f64]| {
-        // σ(o): best node at the belief ∝ Q(o|·) (the same Q for every
-        // action of a chain POMDP; taken from the first action).
-        let q = &p.obs[0];
-        let mut score = vec![vec![0.0; v.len()]; no];
-        for s in 0..ns {
-            let (os, qs) = q.row(s);
-            for (&o, &qv) in os.iter().zip(qs) {
-                for (k, vk) in v.iter().enumerate() {
-                    score[o as usize][k] += qv * vk[s];
-                }
+    // σ(o): best node at the belief ∝ Q(o|·) (the same Q for every action
+    // of a chain POMDP; taken from the first action), fixed from here on.
+    let q = &p.obs[0];
+    let mut score = vec![vec![0.0; v.len()]; no];
+    for s in 0..ns {
+        let (os, qs) = q.row(s);
+        for (&o, &qv) in os.iter().zip(qs) {
+            for (k, vk) in v.iter().enumerate() {
+                score[o as usize][k] += qv * vk[s];
             }
         }
-        let sigma: Vec<usize> = score
-            .iter()
-            .map(|sc| {
-                sc.iter()
-                    .enumerate()
-                    .fold(
-                        (0, f64::NEG_INFINITY),
-                        |b, (k, &x)| if x > b.1 { (k, x) } else { b },
-                    )
-                    .0
-            })
-            .collect();
+    }
+    let sigma: Vec<usize> = score
+        .iter()
+        .map(|sc| {
+            sc.iter()
+                .enumerate()
+                .fold(
+                    (0, f64::NEG_INFINITY),
+                    |b, (k, &x)| if x > b.1 { (k, x) } else { b },
+                )
+                .0
+        })
+        .collect();
+    let apply = |v: &[Vec<f64>], h: &mut [Vec<f64>], w: &mut [f64]| {
         for s in 0..ns {
             let (os, qs) = q.row(s);
             w[s] = os
@@ -132,8 +138,8 @@ pub fn carry(
     v.iter_mut().flatten().for_each(|x| *x -= shift);
     loop {
         apply(&v, &mut h, &mut w);
-        // Keep each vector at least its previous iterate (H is monotone
-        // from below, so this only guards rounding).
+        // Keep each vector at least its previous iterate (the iterates
+        // increase, so this only guards rounding).
         let mut change = 0.0f64;
         for (vk, hk) in v.iter_mut().zip(&h) {
             for (x, &y) in vk.iter_mut().zip(hk) {
@@ -147,5 +153,43 @@ pub fn carry(
             break;
         }
     }
-    v.into_iter().zip(acts).collect()
+    keep_useful(&next.pomdp.start, v, acts, MAX_CARRIED)
+}
+
+/// At most this many carried vectors: the solver evaluates every vector
+/// at every belief it touches, and a previous solve kept unpruned can hold
+/// thousands (a 75-state light-dark policy's slowed the 150-state solve so
+/// much that its bounds hardly moved in 60 s and the policy scored 0).
+pub const MAX_CARRIED: usize = 64;
+
+/// The vectors best at b₀ or at some state (corner belief), then by value
+/// at b₀, at most `cap` of them. Any subset of valid vectors is valid.
+fn keep_useful(
+    b0: &[f64],
+    v: Vec<Vec<f64>>,
+    acts: Vec<usize>,
+    cap: usize,
+) -> Vec<(Vec<f64>, usize)> {
+    let at_b0: Vec<f64> = v
+        .iter()
+        .map(|vk| vk.iter().zip(b0).map(|(a, b)| a * b).sum())
+        .collect();
+    let argmax = |f: &dyn Fn(usize) -> f64| {
+        (0..v.len())
+            .map(|k| (k, f(k)))
+            .fold((0, f64::NEG_INFINITY), |b, x| if x.1 > b.1 { x } else { b })
+            .0
+    };
+    let mut keep = vec![argmax(&|k| at_b0[k])];
+    let ns = v.first().map_or(0, Vec::len);
+    for s in 0..ns {
+        let k = argmax(&|k| v[k][s]);
+        if !keep.contains(&k) {
+            keep.push(k);
+        }
+    }
+    keep[1..].sort_by(|&a, &b| at_b0[b].total_cmp(&at_b0[a]));
+    keep.truncate(cap);
+    let mut out: Vec<Option<(Vec<f64>, usize)>> = v.into_iter().zip(acts).map(Some).collect();
+    keep.into_iter().filter_map(|k| out[k].take()).collect()
 }

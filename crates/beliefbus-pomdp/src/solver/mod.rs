@@ -144,15 +144,22 @@ pub fn solve(
     let eps = opts.precision;
     let tol = eps * (1.0 - g) * 1e-2;
     let mut lb = LowerBound::blind(p, tol, 100_000);
-    for (alpha, a) in &opts.initial_lower {
-        if alpha.len() == p.n_states() && *a < p.n_actions() {
-            lb.add(alpha.clone(), *a);
-        }
-    }
     // FIB may take at most a quarter of the budget (it is O(|A|²) per
     // state and observation; stopping early keeps it an upper bound).
     let fib_deadline = opts.time_limit.map(|l| t0 + l / 4);
     let mut ub = UpperBound::new(p, upper::fib_until(p, tol, 100_000, fib_deadline));
+    // A plan's value at a corner e_s is at most V*(e_s) ≤ the FIB corner
+    // value: a supplied vector above it anywhere is no plan's value, and
+    // trusting it would let the solver stop on a false bound.
+    for (alpha, a) in &opts.initial_lower {
+        if alpha.len() == p.n_states()
+            && *a < p.n_actions()
+            && alpha.iter().all(|x| x.is_finite())
+            && ub.below_corners(alpha)
+        {
+            lb.add(alpha.clone(), *a);
+        }
+    }
     let mut upd = Updater::new(p);
     upd.flush = opts.belief_flush;
     let b0 = SparseBelief::from_dense(&p.start);

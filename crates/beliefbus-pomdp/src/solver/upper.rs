@@ -113,6 +113,15 @@ impl UpperBound {
         }
     }
 
+    /// Whether `alpha` is nowhere above the corner values (with a relative
+    /// slack for rounding): what any plan's value vector satisfies.
+    pub fn below_corners(&self, alpha: &[f64]) -> bool {
+        alpha
+            .iter()
+            .zip(&self.corner)
+            .all(|(a, c)| *a <= c + 1e-9 * c.abs().max(1.0))
+    }
+
     pub fn n_points(&self) -> usize {
         self.points.len()
     }
