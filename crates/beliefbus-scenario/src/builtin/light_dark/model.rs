@@ -141,6 +141,9 @@ pub fn build(p: &LightDarkParams) -> Result<ChainPomdp, String> {
         start: vec![1.0 / n as f64; n],
         row_flush: 1e-9,
         obs_flush: 1e-6,
+        // The chain filter's own rows (as the experiment's light-dark), so
+        // the policy's belief update is the filter's.
+        match_mean: false,
         terminal: Some(Terminal {
             reward: (0..n)
                 .map(|i| {
