@@ -5,6 +5,7 @@
 pub mod mcl;
 pub mod params;
 pub mod slam;
+pub mod slam_acceptance;
 pub mod slam_noise;
 pub mod slam_plot;
 pub mod slam_svg;

@@ -40,7 +40,6 @@ use super::report::{
 };
 use crate::gaussian::Gaussian;
 use crate::grid::{Axis, ParamGrid};
-use crate::inventory::exact::Lattice;
 use crate::inventory::policies::{
     BeliefRule, BootstrapController, Controller, FullObs, ProjectedController,
 };
@@ -55,6 +54,7 @@ use beliefbus_core::experiment_params::{keys, p, ParamDoc};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use super::inventory_exact_ref::exact_reference;
 pub use super::paper::Protocol;
 
 /// The documented `--param` keys of both inventory experiments.
@@ -195,7 +195,7 @@ impl Settings {
     }
 
     /// Periods simulated per run (H for the average, H + 1 discounted terms).
-    fn periods(&self) -> usize {
+    pub(super) fn periods(&self) -> usize {
         match self.protocol {
             Protocol::Average => self.horizon,
             Protocol::Discounted { .. } => self.horizon + 1,
@@ -550,53 +550,6 @@ pub fn run(set: &Settings, name: &str) -> Result<Report, ExperimentError> {
     rep.notes
         .insert(2, exact.note(set, threshold, full_cost, full_se));
     Ok(rep)
-}
-
-/// The full-observation problem solved exactly on a lattice
-/// ([`crate::inventory::exact`]): the expected value the evaluation runs'
-/// full-observation cost estimates, and the optimum over all policies.
-struct ExactReference {
-    threshold_cost: f64,
-    optimum: f64,
-}
-
-fn exact_reference(
-    set: &Settings,
-    base: &Inventory,
-    threshold: f64,
-) -> Result<ExactReference, ExperimentError> {
-    let lat = Lattice::new(base, 0.005, 40.0)?;
-    let act = move |x: f64| usize::from(x < threshold);
-    Ok(match set.protocol {
-        Protocol::Average => ExactReference {
-            threshold_cost: lat.average_cost(&act)?,
-            optimum: lat.optimal_average(1e-10)?.0,
-        },
-        Protocol::Discounted { gamma } => ExactReference {
-            threshold_cost: lat.discounted_cost(&act, gamma, set.periods())?,
-            optimum: lat.optimal_discounted(gamma, set.periods()),
-        },
-    })
-}
-
-impl ExactReference {
-    fn note(&self, set: &Settings, threshold: f64, full_cost: f64, full_se: f64) -> String {
-        let (paper_ref, paper_low) = match set.protocol {
-            Protocol::Average => (paper::TABLE_I_REFERENCE, TABLE_I[0]),
-            Protocol::Discounted { .. } => (paper::TABLE_II_REFERENCE, TABLE_II[0]),
-        };
-        let pct = |v: f64| 100.0 * (v / self.threshold_cost - 1.0);
-        format!(
-            "exact full-observation reference (lattice DP, d = 0.005): threshold {threshold:.1} costs {:.4} in expectation, the optimum over all policies {:.4}; our evaluation runs' full-observation cost {full_cost:.3} ± {full_se:.3} is {:+.2} % from it, the paper's implied reference {paper_ref} {:+.2} % and its sigma = 0.1 row (ours/CE/CE-MLE) {:+.2} / {:+.2} / {:+.2} %; with common random numbers every row of a table shares its run's offset, so compare the deviation columns (paired) and, across seeds, the expected values",
-            self.threshold_cost,
-            self.optimum,
-            pct(full_cost),
-            pct(paper_ref),
-            pct(paper_low[0]),
-            pct(paper_low[1]),
-            pct(paper_low[2]),
-        )
-    }
 }
 
 fn notes(

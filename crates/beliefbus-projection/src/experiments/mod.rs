@@ -5,6 +5,7 @@
 //! `{"experiment", "params", "results": [...], "paper": [...]}`.
 
 pub mod inventory;
+mod inventory_exact_ref;
 pub mod inventory_print;
 pub mod paper;
 pub mod report;
