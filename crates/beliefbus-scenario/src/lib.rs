@@ -98,6 +98,18 @@ pub trait Scenario: 'static {
     }
 }
 
+/// The schema of a parameter section with every sub-schema inlined (what
+/// the configuration reference renders): a [`Scenario::params_schema`]
+/// body for `Params` deriving `schemars::JsonSchema`.
+pub fn inline_schema<T: schemars::JsonSchema>() -> Option<schemars::Schema> {
+    Some(
+        schemars::generate::SchemaSettings::draft2020_12()
+            .with(|s| s.inline_subschemas = true)
+            .into_generator()
+            .into_root_schema_for::<T>(),
+    )
+}
+
 /// One sensor channel of a scenario: which components of the model's
 /// observation vector its samples carry.
 #[derive(Clone, Debug, PartialEq, Eq)]

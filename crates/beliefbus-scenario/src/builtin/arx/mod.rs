@@ -222,12 +222,7 @@ impl Scenario for ArxScenario {
     /// Inlined, so the reference lists `[arx.filter]` and `[arx.control]`
     /// key by key.
     fn params_schema() -> Option<schemars::Schema> {
-        Some(
-            schemars::generate::SchemaSettings::draft2020_12()
-                .with(|s| s.inline_subschemas = true)
-                .into_generator()
-                .into_root_schema_for::<ArxParams>(),
-        )
+        crate::inline_schema::<ArxParams>()
     }
     fn build(p: ArxParams, ctx: &BuildContext) -> Result<Box<dyn System>, String> {
         let (scheme, rule) = p.validate()?;

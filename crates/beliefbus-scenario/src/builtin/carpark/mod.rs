@@ -287,12 +287,7 @@ impl Scenario for CarparkScenario {
         CarparkParams::default()
     }
     fn params_schema() -> Option<schemars::Schema> {
-        Some(
-            schemars::generate::SchemaSettings::draft2020_12()
-                .with(|s| s.inline_subschemas = true)
-                .into_generator()
-                .into_root_schema_for::<CarparkParams>(),
-        )
+        crate::inline_schema::<CarparkParams>()
     }
     fn build(p: CarparkParams, ctx: &BuildContext) -> Result<Box<dyn System>, String> {
         p.validate()?;

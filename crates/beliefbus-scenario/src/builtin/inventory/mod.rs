@@ -187,12 +187,7 @@ impl Scenario for InventoryScenario {
         InventoryParams::default()
     }
     fn params_schema() -> Option<schemars::Schema> {
-        Some(
-            schemars::generate::SchemaSettings::draft2020_12()
-                .with(|s| s.inline_subschemas = true)
-                .into_generator()
-                .into_root_schema_for::<InventoryParams>(),
-        )
+        crate::inline_schema::<InventoryParams>()
     }
     fn build(p: InventoryParams, _ctx: &BuildContext) -> Result<Box<dyn System>, String> {
         let model = p.validate()?;

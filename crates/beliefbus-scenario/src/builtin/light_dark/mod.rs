@@ -229,12 +229,7 @@ impl Scenario for LightDarkScenario {
         LightDarkParams::default()
     }
     fn params_schema() -> Option<schemars::Schema> {
-        Some(
-            schemars::generate::SchemaSettings::draft2020_12()
-                .with(|s| s.inline_subschemas = true)
-                .into_generator()
-                .into_root_schema_for::<LightDarkParams>(),
-        )
+        crate::inline_schema::<LightDarkParams>()
     }
     fn build(p: LightDarkParams, _ctx: &BuildContext) -> Result<Box<dyn System>, String> {
         Ok(Box::new(LightDarkSystem::new(p)?))

@@ -250,12 +250,7 @@ impl Scenario for VictoriaParkScenario {
         VictoriaParkParams::default()
     }
     fn params_schema() -> Option<schemars::Schema> {
-        Some(
-            schemars::generate::SchemaSettings::draft2020_12()
-                .with(|s| s.inline_subschemas = true)
-                .into_generator()
-                .into_root_schema_for::<VictoriaParkParams>(),
-        )
+        crate::inline_schema::<VictoriaParkParams>()
     }
     fn build(p: VictoriaParkParams, _ctx: &BuildContext) -> Result<Box<dyn System>, String> {
         p.validate()?;
