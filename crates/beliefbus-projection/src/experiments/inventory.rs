@@ -490,7 +490,7 @@ pub fn run(set: &Settings, name: &str) -> Result<Report, ExperimentError> {
             .num("cost_se", full_se)
             .num("threshold", threshold),
     );
-    let exact = exact_reference(set, &base, threshold)?;
+    let exact = exact_reference(set.protocol, set.periods(), &base, threshold)?;
     rep.results.push(
         Row::new("full_obs_exact")
             .num("sigma", 0.0)
@@ -548,7 +548,7 @@ pub fn run(set: &Settings, name: &str) -> Result<Report, ExperimentError> {
         started.elapsed().as_secs_f64(),
     );
     rep.notes
-        .insert(2, exact.note(set, threshold, full_cost, full_se));
+        .insert(2, exact.note(set.protocol, threshold, full_cost, full_se));
     Ok(rep)
 }
 

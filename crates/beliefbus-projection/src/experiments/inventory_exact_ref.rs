@@ -3,8 +3,7 @@
 //! the lattice DP of [`crate::inventory::exact`], beside the evaluation
 //! runs' estimate and the paper's implied reference.
 
-use super::inventory::{Protocol, Settings};
-use super::paper::{self, TABLE_I, TABLE_II};
+use super::paper::{self, Protocol, TABLE_I, TABLE_II};
 use super::report::ExperimentError;
 use crate::inventory::exact::Lattice;
 use crate::inventory::Inventory;
@@ -18,20 +17,21 @@ pub(super) struct ExactReference {
 }
 
 pub(super) fn exact_reference(
-    set: &Settings,
+    protocol: Protocol,
+    periods: usize,
     base: &Inventory,
     threshold: f64,
 ) -> Result<ExactReference, ExperimentError> {
     let lat = Lattice::new(base, 0.005, 40.0)?;
     let act = move |x: f64| usize::from(x < threshold);
-    Ok(match set.protocol {
+    Ok(match protocol {
         Protocol::Average => ExactReference {
             threshold_cost: lat.average_cost(&act)?,
             optimum: lat.optimal_average(1e-10)?.0,
         },
         Protocol::Discounted { gamma } => ExactReference {
-            threshold_cost: lat.discounted_cost(&act, gamma, set.periods())?,
-            optimum: lat.optimal_discounted(gamma, set.periods()),
+            threshold_cost: lat.discounted_cost(&act, gamma, periods)?,
+            optimum: lat.optimal_discounted(gamma, periods),
         },
     })
 }
@@ -39,12 +39,12 @@ pub(super) fn exact_reference(
 impl ExactReference {
     pub(super) fn note(
         &self,
-        set: &Settings,
+        protocol: Protocol,
         threshold: f64,
         full_cost: f64,
         full_se: f64,
     ) -> String {
-        let (paper_ref, paper_low) = match set.protocol {
+        let (paper_ref, paper_low) = match protocol {
             Protocol::Average => (paper::TABLE_I_REFERENCE, TABLE_I[0]),
             Protocol::Discounted { .. } => (paper::TABLE_II_REFERENCE, TABLE_II[0]),
         };
