@@ -12,9 +12,10 @@
 //! the sequence numbers — iceoryx2's safe overflow overwrote it in the full
 //! queue; `stale`: the freshness policy; `shutdown`: still queued when the
 //! filter stopped, at most a queue's worth) — nothing vanishes uncounted;
-//! most are dropped (the overload was real); the queueing delay with the policy is
-//! well below that of the plain queue (`max_obs_age_us = 0`) measured in the
-//! same test; the process's memory does not grow while overloaded.
+//! most are dropped (the overload was real); the queueing delay with the policy
+//! stays (median) within its age limit and below that of the plain queue
+//! (`max_obs_age_us = 0`) measured in the same test; the process's memory does
+//! not grow while overloaded.
 
 use beliefbus::ipc::{cleanup, Belief, Bus, Message, Observation, StageKind, StageStats};
 use beliefbus::model::SdeModel;
@@ -262,7 +263,25 @@ fn a_sensor_ten_times_faster_than_the_filter_keeps_latency_bounded_and_counts_dr
         queue.stats.dropped_by_reason,
         queue.published
     );
-    // The freshest-wins policy bounds the queueing delay near one step; the
-    // plain queue holds up to its capacity of stale observations.
-    assert!(pf * 2 < pq, "freshest p99 {pf} ns vs queue p99 {pq} ns");
+    // The freshest-wins policy bounds the queueing delay by its age limit
+    // (half a step here): an older observation is filtered only when nothing
+    // fresher waits. The typical (median) delay therefore stays within the
+    // limit — half as much again leaves room for the feeder's own stalls on a
+    // loaded machine — while the plain queue makes observations wait for the
+    // ones queued before them. How deep the plain queue gets depends on how
+    // evenly the feeder got the CPU, so the tails are compared by order only.
+    let max_age = step / 2;
+    let median = |v: &[u64]| {
+        let mut v = v.to_vec();
+        v.sort();
+        v[v.len() / 2]
+    };
+    let (mf, mq) = (median(&fresh.waits_ns), median(&queue.waits_ns));
+    eprintln!("median: freshest {mf} ns, queue {mq} ns; age limit {max_age} ns");
+    assert!(
+        mf * 2 <= max_age * 3,
+        "freshest median {mf} ns vs its age limit {max_age} ns"
+    );
+    assert!(mf < mq, "freshest median {mf} ns vs queue median {mq} ns");
+    assert!(pf < pq, "freshest p99 {pf} ns vs queue p99 {pq} ns");
 }
