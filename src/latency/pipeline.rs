@@ -50,6 +50,10 @@ pub struct PipelineJitterConfig {
 pub struct StageFigures {
     pub processed: u64,
     pub deadline_misses: u64,
+    /// Of the misses, those during which the stage's own CPU time stayed
+    /// within the budget (preempted, not an overrun).
+    #[serde(default)]
+    pub deadline_misses_preempted: u64,
     pub budget_us: Option<f64>,
     pub compute_p50_us: Option<f64>,
     pub compute_p99_us: Option<f64>,
@@ -156,6 +160,7 @@ fn stage_figures(report: &serde_json::Value) -> Vec<(String, StageFigures)> {
                 StageFigures {
                     processed: s["processed"].as_u64().unwrap_or(0),
                     deadline_misses: s["deadline_misses"].as_u64().unwrap_or(0),
+                    deadline_misses_preempted: s["deadline_misses_preempted"].as_u64().unwrap_or(0),
                     budget_us: s["budget_us"].as_f64(),
                     compute_p50_us: s["compute_p50_us"].as_f64(),
                     compute_p99_us: s["compute_p99_us"].as_f64(),

@@ -8,7 +8,17 @@
 //! early. The response time `t_end − t_release` (queueing + compute) goes
 //! into a histogram (lateness percentiles are its percentiles minus the
 //! budget), and a positive lateness counts the message as late.
+//!
+//! Who missed: a miss is wall-clock time, which also runs while the stage is
+//! not on its CPU. When the stage marks where a message's work starts
+//! ([`Budget::start`]), a miss whose own thread CPU time stayed within the
+//! budget is also counted as *preempted*: the overrun was time taken from
+//! the stage (another thread, the kernel, the host's hypervisor), not work
+//! it did. The rest are its own overruns. A message without a start mark
+//! measures from the previous mark, which can only make its CPU time larger:
+//! the split never calls an own overrun preempted.
 
+use super::clock::thread_cpu_ns;
 use super::hist::LatencyHist;
 
 /// Compute-time accounting against a budget.
@@ -16,6 +26,9 @@ use super::hist::LatencyHist;
 pub struct Budget {
     budget_ns: u64,
     misses: u64,
+    preempted: u64,
+    /// Thread CPU time at the last [`Budget::start`] (0: never marked).
+    cpu_start_ns: u64,
     compute: LatencyHist,
     response: LatencyHist,
     late: u64,
@@ -27,10 +40,18 @@ impl Budget {
         Self {
             budget_ns,
             misses: 0,
+            preempted: 0,
+            cpu_start_ns: 0,
             compute: LatencyHist::new(),
             response: LatencyHist::new(),
             late: 0,
         }
+    }
+
+    /// Mark the start of a message's work for the preempted/overrun split
+    /// (one thread-CPU clock read).
+    pub fn start(&mut self) {
+        self.cpu_start_ns = thread_cpu_ns();
     }
 
     /// Record one message that started at `start_ns` and finished at
@@ -40,6 +61,10 @@ impl Budget {
         self.compute.record(dt);
         let miss = self.budget_ns > 0 && dt > self.budget_ns;
         self.misses += miss as u64;
+        if miss && self.cpu_start_ns > 0 {
+            let cpu = thread_cpu_ns().saturating_sub(self.cpu_start_ns);
+            self.preempted += (cpu <= self.budget_ns) as u64;
+        }
         miss
     }
 
@@ -78,6 +103,12 @@ impl Budget {
         self.misses
     }
 
+    /// Of [`Budget::misses`], those whose own CPU time stayed within the
+    /// budget: time was taken from the stage, it did not overrun.
+    pub fn preempted(&self) -> u64 {
+        self.preempted
+    }
+
     /// The compute-time histogram.
     pub fn compute(&self) -> &LatencyHist {
         &self.compute
@@ -114,5 +145,39 @@ mod tests {
         assert_eq!(b.compute().count(), 3);
         assert_eq!(b.response().count(), 2);
         assert_eq!(b.response().max(), 110);
+    }
+
+    /// Work on the CPU for about `ns` (the thread's own clock).
+    fn burn(ns: u64) {
+        let t0 = thread_cpu_ns();
+        let mut x = 1u64;
+        while thread_cpu_ns() - t0 < ns {
+            x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+        }
+    }
+
+    #[test]
+    fn a_miss_spent_off_the_cpu_is_preempted_and_one_spent_computing_is_an_overrun() {
+        let budget = 2_000_000; // 2 ms
+        let mut b = Budget::new(budget);
+        // Descheduled for 3× the budget (a sleep is what a preemption looks
+        // like to the thread): a miss, but not the stage's own work.
+        b.start();
+        let t0 = crate::clock::now_ns();
+        std::thread::sleep(std::time::Duration::from_nanos(3 * budget));
+        assert!(b.record(t0, crate::clock::now_ns()));
+        assert_eq!((b.misses(), b.preempted()), (1, 1));
+        // Computing for 3× the budget: an own overrun.
+        b.start();
+        let t0 = crate::clock::now_ns();
+        burn(3 * budget);
+        assert!(b.record(t0, crate::clock::now_ns()));
+        assert_eq!((b.misses(), b.preempted()), (2, 1));
+        // Without a start mark the CPU time runs from the last mark, so an
+        // unmarked message is never classed as preempted by mistake.
+        let t0 = crate::clock::now_ns();
+        std::thread::sleep(std::time::Duration::from_nanos(3 * budget));
+        assert!(b.record(t0, crate::clock::now_ns()));
+        assert_eq!((b.misses(), b.preempted()), (3, 1));
     }
 }

@@ -89,7 +89,9 @@ impl Clock for SimClock {
 /// CPU time of the calling thread in ns (CLOCK_THREAD_CPUTIME_ID). Unlike
 /// wall time it leaves out the time the thread was descheduled, so compute
 /// percentiles stay meaningful on a shared, loaded machine (benchmarks and
-/// experiments report it beside wall time).
+/// experiments report it beside wall time). With the kernel's steal
+/// accounting (common hypervisors) it also leaves out the time the host took
+/// the virtual CPU away.
 pub fn thread_cpu_ns() -> u64 {
     let mut ts = libc::timespec {
         tv_sec: 0,

@@ -184,7 +184,7 @@ impl JitterReport {
         for p in &self.paths {
             s += &fmt_row(p);
         }
-        s += "(timer rows: jit = |period − T|, lat = wake-up latency, misses = late by a period; pipeline rows: lat = end-to-end (sensor->ingest for sensor), misses = above the budget; r = jitter ratio to the timer)\n";
+        s += "(timer rows: jit = |period − T|, lat = wake-up latency, misses = late by a period; pipeline rows: lat = end-to-end (sensor->ingest for sensor), misses = above the budget, preempted = of those, the ones whose own CPU time stayed within it; r = jitter ratio to the timer)\n";
         if let Some(p) = &self.pipeline {
             s += &format!(
                 "pipeline {} at {} Hz: {} controls measured; stage compute vs budget (µs):\n",
@@ -193,13 +193,14 @@ impl JitterReport {
             let o = |x: Option<f64>| x.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
             for (name, f) in &p.stages {
                 s += &format!(
-                    "  {:<8} processed {:>8}  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5}  late {:>5}  lateness p99 {:>8}\n",
+                    "  {:<8} processed {:>8}  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5} (preempted {:>5})  late {:>5}  lateness p99 {:>8}\n",
                     name,
                     f.processed,
                     o(f.compute_p50_us),
                     o(f.compute_p99_us),
                     o(f.budget_us),
                     f.deadline_misses,
+                    f.deadline_misses_preempted,
                     f.late,
                     o(f.lateness_p99_us)
                 );

@@ -141,6 +141,10 @@ pub struct StageStats {
     pub rejected_by_reason: [u64; STATS_REASONS],
     /// Messages whose compute time exceeded the budget.
     pub deadline_misses: u64,
+    /// Of `deadline_misses`, those whose own thread CPU time stayed within
+    /// the budget: the stage was preempted (by another thread, the kernel
+    /// or the host), it did not overrun (see `beliefbus_rt::budget`).
+    pub deadline_misses_preempted: u64,
     pub budget_ns: u64,
     /// Compute time per processed message.
     pub compute: Percentiles,
@@ -226,6 +230,7 @@ impl Default for StageStats {
             rejected: 0,
             rejected_by_reason: [0; STATS_REASONS],
             deadline_misses: 0,
+            deadline_misses_preempted: 0,
             budget_ns: 0,
             compute: Percentiles::default(),
             hops: [HopStats::default(); STATS_HOPS],

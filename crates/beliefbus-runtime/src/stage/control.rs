@@ -271,6 +271,7 @@ pub fn run_with(
                 let (latest, skipped) = belief.latest()?;
                 if let Some(b) = latest {
                     let t_in = clock.now_ns();
+                    m.budget.start();
                     m.count_drop(DropReason::Superseded, skipped);
                     m.count_drop(DropReason::Lost, seq.observe(b.header.seq));
                     if max_age_ns > 0 && t_in.saturating_sub(b.header.t_pub_ns) > max_age_ns {

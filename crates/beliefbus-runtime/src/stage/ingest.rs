@@ -389,6 +389,7 @@ pub fn run(
             if w == Wake::Data {
                 while let Some((s, origin)) = sensor.receive_from()? {
                     let t_in = clock.now_ns();
+                    m.budget.start();
                     let connected = |p| sensor.publisher_connected(p);
                     match v.check_from(&s, origin.publisher, &connected, t_in, &mut o) {
                         Ok(_) => {

@@ -305,6 +305,7 @@ impl Metrics {
             rejected: self.rejected(),
             rejected_by_reason: self.rejected_by_reason,
             deadline_misses: self.budget.misses(),
+            deadline_misses_preempted: self.budget.preempted(),
             budget_ns: self.budget.budget_ns(),
             compute: Percentiles::from(self.budget.compute()),
             controls_received: self.controls_received,

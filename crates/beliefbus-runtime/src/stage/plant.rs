@@ -253,6 +253,7 @@ pub fn run_resumed(
             continue; // woken early by a signal: re-check stop
         }
         let t_wake = clock.now_ns();
+        m.budget.start();
 
         // Controls published up to t_k, in publish order, each from its
         // publish time (zero-order hold). Anyone who can open the control

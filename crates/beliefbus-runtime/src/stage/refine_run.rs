@@ -115,6 +115,7 @@ pub fn run_with(
             if now >= next_work && due {
                 next_work = now + period_ns;
                 let t_in = clock.now_ns();
+                m.budget.start();
                 // The round lasts `work`: the last staging's cost (P^δ,
                 // snapshot) is kept free at its end (at most half the
                 // round), so a round that completes a version still ends

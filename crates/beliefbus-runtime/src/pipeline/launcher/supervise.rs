@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 pub(super) const KILL_REAP_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// Number of counters carried over from earlier incarnations.
-const CARRIED: usize = 8;
+const CARRIED: usize = 9;
 
 /// One stage of the run: its current process and its history.
 pub(super) struct Stage {
@@ -162,6 +162,7 @@ impl Stage {
         st.controls_received += e[5];
         st.processed_after_warmup += e[6];
         st.ess_collapses += e[7];
+        st.deadline_misses_preempted += e[8];
         for (d, x) in st.dropped_by_reason.iter_mut().zip(self.earlier_drops) {
             *d += x;
         }
@@ -211,6 +212,7 @@ fn counters(st: &StageStats) -> [u64; CARRIED] {
         st.controls_received,
         st.processed_after_warmup,
         st.ess_collapses,
+        st.deadline_misses_preempted,
     ]
 }
 

@@ -81,6 +81,9 @@ pub struct StageReport {
     pub rejected: u64,
     pub rejected_by_reason: BTreeMap<String, u64>,
     pub deadline_misses: u64,
+    /// Of the misses, those during which the stage's own CPU time stayed
+    /// within the budget: preempted, not an overrun.
+    pub deadline_misses_preempted: u64,
     pub compute_p50_us: Option<f64>,
     pub compute_p99_us: Option<f64>,
     pub budget_us: f64,
@@ -285,6 +288,7 @@ fn stage_report(kind: StageKind, end: &super::StageEnd) -> StageReport {
             .map(|(n, v)| (n.to_string(), v))
             .collect(),
         deadline_misses: s.deadline_misses,
+        deadline_misses_preempted: s.deadline_misses_preempted,
         compute_p50_us: (c.count > 0).then(|| us(c.p50_ns)),
         compute_p99_us: (c.count > 0).then(|| us(c.p99_ns)),
         budget_us: us(s.budget_ns),

@@ -9,7 +9,7 @@
 //!             {count, p50_us, p90_us, p99_us, p999_us, max_us} },
 //!   stages: { ingest | filter | control | refine | plant:
 //!             {pid, core, processed, dropped, rejected, rejected_by_reason,
-//!              deadline_misses, compute_p50_us, compute_p99_us, budget_us,
+//!              deadline_misses, deadline_misses_preempted, compute_p50_us, compute_p99_us, budget_us,
 //!              fifo, mlocked, final_report, exit_status,
 //!              restarts, heartbeat_misses, chaos_kills, deaths} },
 //!   accuracy: {rmse_position, rmse_state, rmse_position_raw, beliefs, samples},

@@ -40,9 +40,11 @@ impl ReportInput {
     }
 
     /// One line per stage: pid, core, counters, compute and lateness.
+    /// `preempt`: the misses during which the stage's own CPU time stayed
+    /// within its budget (time taken from it, not an overrun).
     fn stage_table(&self) -> String {
         let mut out = format!(
-            "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>10} {:>10} {:>9} {:>6} {:>11}\n",
+            "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>7} {:>10} {:>10} {:>9} {:>6} {:>11}\n",
             "stage",
             "pid",
             "core",
@@ -50,6 +52,7 @@ impl ReportInput {
             "dropped",
             "rejected",
             "misses",
+            "preempt",
             "cpu p50µs",
             "cpu p99µs",
             "budgetµs",
@@ -59,7 +62,7 @@ impl ReportInput {
         for (kind, end) in &self.stages {
             let s = end.stats.unwrap_or_default();
             out.push_str(&format!(
-                "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>10.1} {:>10.1} {:>9.0} {:>6} {:>11}\n",
+                "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>7} {:>10.1} {:>10.1} {:>9.0} {:>6} {:>11}\n",
                 kind.name(),
                 end.pid.map(|p| p.to_string()).unwrap_or("-".into()),
                 if s.core >= 0 {
@@ -71,6 +74,7 @@ impl ReportInput {
                 s.dropped,
                 s.rejected,
                 s.deadline_misses,
+                s.deadline_misses_preempted,
                 us(s.compute.p50_ns),
                 us(s.compute.p99_ns),
                 us(s.budget_ns),

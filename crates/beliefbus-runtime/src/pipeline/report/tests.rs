@@ -94,6 +94,7 @@ fn json_has_every_documented_key() {
             "dropped",
             "rejected",
             "deadline_misses",
+            "deadline_misses_preempted",
             "compute_p50_us",
             "compute_p99_us",
             "budget_us",

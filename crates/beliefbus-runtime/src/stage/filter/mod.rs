@@ -305,6 +305,7 @@ pub fn run_with(
             if w == Wake::Data {
                 while let Some((o, origin)) = obs_sub.receive_from()? {
                     let t_in = clock.now_ns();
+                    m.budget.start();
                     if !obs_gate.admit(obs_sub, &origin) {
                         m.reject(Reason::Foreign as usize);
                         continue;
