@@ -59,6 +59,8 @@ pub struct PomdpController {
     /// The full set the table came from: the background solve's seed
     /// (moved to its thread when it starts).
     full: Option<FlatPolicy>,
+    /// The policy in use is the full set; bound it at the first prepare.
+    unbounded: bool,
     version: u64,
     background: Option<Background>,
     /// The background solve ran (or is off).
@@ -88,21 +90,29 @@ pub fn table_for(sys: &LightDarkSystem, full: &FlatPolicy, seed: u64) -> FlatPol
 }
 
 impl PomdpController {
-    /// Load and check the policy file.
+    /// Load and check the policy file. The bounded table is built on the
+    /// first [`Controller::prepare`] (the stage's start), not here: config
+    /// validation builds controllers too, and needs only the check.
     pub fn new(sys: &LightDarkSystem) -> Result<Self, String> {
         let (p, lower) = sys.load_policy()?;
-        Ok(Self::bounded(
-            sys,
-            FlatPolicy::new(&p, sys.pomdp.n_chain(), lower),
-        ))
+        let mut c = Self::with_policy(sys, FlatPolicy::new(&p, sys.pomdp.n_chain(), lower));
+        c.unbounded = true;
+        Ok(c)
     }
 
     /// Acting with the bounded table of `full`.
     pub fn bounded(sys: &LightDarkSystem, full: FlatPolicy) -> Self {
-        let table = table_for(sys, &full, PRUNE_SEED);
-        let mut c = Self::with_policy(sys, table);
-        c.full = Some(full);
+        let mut c = Self::with_policy(sys, full);
+        c.bound_table();
         c
+    }
+
+    /// Replace the policy in use, taken as the full set, by its bounded
+    /// table (set-up: allocates).
+    pub fn bound_table(&mut self) {
+        self.unbounded = false;
+        let table = table_for(&self.sys, self.policy.get(), PRUNE_SEED);
+        self.full = Some(*self.policy.replace(Box::new(table)));
     }
 
     /// Acting with `policy` as given (every vector scanned).
@@ -111,6 +121,7 @@ impl PomdpController {
             sys: sys.clone(),
             policy: Current::new(Box::new(policy)),
             full: None,
+            unbounded: false,
             version: 0,
             background: None,
             started: sys.params.policy.refine_round_s <= 0.0
@@ -276,9 +287,12 @@ impl Controller for PomdpController {
     /// The goal is the policy's.
     fn set_goal(&mut self, _goal: &[f64]) {}
     fn reset(&mut self) {}
-    /// Off the sensor→control path: start the background solve, swap in a
-    /// policy it published.
+    /// Off the sensor→control path: bound the table (first call), start the
+    /// background solve, swap in a policy it published.
     fn prepare(&mut self) {
+        if self.unbounded {
+            self.bound_table();
+        }
         self.start_background();
         self.try_swap();
     }

@@ -23,8 +23,8 @@
 //!
 //! The beliefs a table meets depend on the table, so the simulation is
 //! repeated acting with the table just built (fresh seeds), adding the
-//! full set's maximisers at the newly visited beliefs, until a pass adds
-//! none (or after [`PASSES`]).
+//! full set's maximisers at the newly visited beliefs, until a pass meets
+//! no maximiser not seen before (or after [`PASSES`]).
 
 use super::control::write_action;
 use super::encoding::{CONTROL, EVENT_NONE};
@@ -103,9 +103,20 @@ pub fn sample_beliefs(
 /// first, then in `full`'s order. Returns the table, the number of
 /// distinct maximisers and the loss at `beliefs`.
 pub fn select(full: &FlatPolicy, beliefs: &[f64], capacity: usize) -> (FlatPolicy, usize, f64) {
+    let best: Vec<(usize, f64)> = beliefs.chunks_exact(full.n).map(|b| full.best(b)).collect();
+    select_with(full, beliefs, &best, capacity)
+}
+
+/// [`select`] with the full set's maximiser and value at each belief.
+fn select_with(
+    full: &FlatPolicy,
+    beliefs: &[f64],
+    best: &[(usize, f64)],
+    capacity: usize,
+) -> (FlatPolicy, usize, f64) {
     let mut hits = vec![0u64; full.len()];
-    for b in beliefs.chunks_exact(full.n) {
-        hits[full.best(b).0] += 1;
+    for &(k, _) in best {
+        hits[k] += 1;
     }
     let mut used: Vec<usize> = (0..full.len()).filter(|&k| hits[k] > 0).collect();
     let maximisers = used.len();
@@ -117,7 +128,8 @@ pub fn select(full: &FlatPolicy, beliefs: &[f64], capacity: usize) -> (FlatPolic
     let table = full.subset(&used);
     let loss = beliefs
         .chunks_exact(full.n)
-        .map(|b| full.best(b).1 - table.best(b).1)
+        .zip(best)
+        .map(|(b, &(_, v))| v - table.best(b).1)
         .fold(0.0, f64::max);
     (table, maximisers, loss)
 }
@@ -131,33 +143,35 @@ pub fn bounded_table(
     episodes: u64,
     seed: u64,
 ) -> (FlatPolicy, PruneReport) {
+    let n = full.n;
     let mut beliefs = sample_beliefs(sys, full, episodes, seed);
-    let (mut table, mut maximisers, mut loss) = select(full, &beliefs, capacity);
+    let mut best: Vec<(usize, f64)> = beliefs.chunks_exact(n).map(|b| full.best(b)).collect();
+    let mut seen = vec![false; full.len()];
+    best.iter().for_each(|&(k, _)| seen[k] = true);
+    let (mut table, mut maximisers, mut loss) = select_with(full, &beliefs, &best, capacity);
     let mut passes = 1;
     while passes < PASSES {
         let more = sample_beliefs(sys, &table, episodes, seed.wrapping_add(passes));
         passes += 1;
-        // A maximiser missing from the table shows as a lower value (a
-        // kept one gives the same value, bit for bit).
-        let new = more
-            .chunks_exact(full.n)
-            .any(|b| table.best(b).1 < full.best(b).1);
+        let mut new = false;
+        for b in more.chunks_exact(n) {
+            let kv = full.best(b);
+            new |= !seen[kv.0];
+            seen[kv.0] = true;
+            best.push(kv);
+        }
         beliefs.extend_from_slice(&more);
+        (table, maximisers, loss) = select_with(full, &beliefs, &best, capacity);
+        // Acting with this table meets no maximiser the last one missed.
         if !new {
             break;
         }
-        (table, maximisers, loss) = select(full, &beliefs, capacity);
     }
-    // The loss over every sampled belief, the last pass's included.
-    loss = beliefs
-        .chunks_exact(full.n)
-        .map(|b| full.best(b).1 - table.best(b).1)
-        .fold(loss, f64::max);
     let slope = full.alphas.iter().fold(0.0, |m: f64, a| m.max(a.abs()));
     let report = PruneReport {
         full: full.len(),
         maximisers,
-        beliefs: beliefs.len() / full.n.max(1),
+        beliefs: beliefs.len() / n.max(1),
         loss,
         slope,
         passes,

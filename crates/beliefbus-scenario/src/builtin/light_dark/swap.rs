@@ -111,6 +111,11 @@ impl<T> Current<T> {
         &self.value
     }
 
+    /// Set-up, off the control path: put `value` in use, return the old.
+    pub fn replace(&mut self, value: Box<T>) -> Box<T> {
+        std::mem::replace(&mut self.value, value)
+    }
+
     /// Take the offered value if there is one: atomic swaps and a pointer
     /// exchange, no allocation, no free, no lock. True if swapped.
     pub fn take_from(&mut self, mailbox: &Mailbox<T>) -> bool {
