@@ -124,7 +124,7 @@ pub struct LightDarkPolicyParams {
 }
 
 fn default_lookup_capacity() -> usize {
-    96
+    128
 }
 
 fn default_prune_episodes() -> u64 {
