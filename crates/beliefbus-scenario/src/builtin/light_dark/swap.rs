@@ -206,7 +206,7 @@ mod tests {
         publisher.join().unwrap();
         // The last offer always arrives; some were replaced untaken.
         assert_eq!(current.get().version, OFFERS);
-        assert!(swaps >= 1 && swaps <= OFFERS);
+        assert!((1..=OFFERS).contains(&swaps));
         // Every value but the one in use was freed exactly once, on the
         // publisher's side or with the mailbox.
         drop(mailbox);
