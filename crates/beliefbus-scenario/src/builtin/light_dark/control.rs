@@ -7,7 +7,8 @@
 //!
 //! with b_k the `chain-pomdp` filter's probabilities over the chain states
 //! (carried in the belief message, [`super::encoding`]). The lookup is
-//! K·n multiply-adds over a flat preallocated table ([`FlatPolicy::act`]);
+//! K·n multiply-adds over a flat table of at most `lookup_capacity` rows
+//! ([`FlatPolicy::act`]);
 //! its time is measured on every call and published with the control.
 //!
 //! The policy file is loaded and checked when the controller is built —
@@ -15,7 +16,8 @@
 //! naming the `beliefbus solve` command. The table the lookup scans is not
 //! the solver's whole set but at most `policy.lookup_capacity` of its
 //! vectors, those that attain the maximum at the beliefs a simulated
-//! closed loop visits ([`super::prune`]), built before the run starts.
+//! closed loop visits ([`super::prune`]), built at the first
+//! [`Controller::prepare`] (the stage's start, before any decision).
 //!
 //! **Swaps.** With `refine_round_s > 0` the controller starts, on its first
 //! [`Controller::prepare`] (which the stage calls when it starts and after
