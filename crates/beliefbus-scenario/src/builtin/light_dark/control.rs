@@ -7,70 +7,123 @@
 //!
 //! with b_k the `chain-pomdp` filter's probabilities over the chain states
 //! (carried in the belief message, [`super::encoding`]). The lookup is
-//! K·n multiply-adds over a flat preallocated table ([`FlatPolicy::act`]);
+//! K·n multiply-adds over a flat table of at most `lookup_capacity` rows
+//! ([`FlatPolicy::act`]);
 //! its time is measured on every call and published with the control.
 //!
 //! The policy file is loaded and checked when the controller is built —
 //! at config validation — so a missing or stale file is a config error
-//! naming the `beliefbus solve` command.
+//! naming the `beliefbus solve` command. The table the lookup scans is not
+//! the solver's whole set but at most `policy.lookup_capacity` of its
+//! vectors, those that attain the maximum at the beliefs a simulated
+//! closed loop visits ([`super::prune`]), built at the first
+//! [`Controller::prepare`] (the stage's start, before any decision).
 //!
 //! **Swaps.** With `refine_round_s > 0` the controller starts, on its first
 //! [`Controller::prepare`] (which the stage calls when it starts and after
 //! each published control; never at validation), a background thread
-//! that keeps solving the same POMDP from the policy in use (its α-vectors
-//! seed the solver's lower bound, so V̲(b₀) never decreases), demoted to
-//! SCHED_OTHER at nice 19 and moved off the control thread's core. When a
-//! round raises V̲(b₀) it flattens the new policy (dropping dominated
-//! vectors) off the hot path and sends it over a channel; `prepare` —
-//! which the stage calls after publishing a control, off the
-//! sensor→control path — takes it and swaps the table (a pointer swap;
-//! the replaced table goes back to the solver thread to be freed there):
-//! `compute` never waits for the solver. Each swap raises the policy
-//! version published with the control.
+//! that keeps solving the same POMDP from the full set of the policy in
+//! use (its α-vectors seed the solver's lower bound, so V̲(b₀) never
+//! decreases), at SCHED_OTHER nice 19 and moved off the
+//! control thread's core. When a round raises V̲(b₀) it builds the new
+//! bounded table on that thread and offers it through a lock-free mailbox
+//! ([`super::swap`]); `prepare` — off the sensor→control path — takes it
+//! with one atomic swap and a pointer exchange; the replaced table goes
+//! back to the solver thread to be freed there. `compute` never waits for
+//! the solver, and nothing is allocated or freed on the control thread.
+//! Each swap raises the policy version published with the control.
 
 use super::encoding::{read_chain, CONTROL, U_DECLARE, U_LOOKUP_NS, U_VELOCITY, U_VERSION};
 use super::policy::FlatPolicy;
+use super::prune::bounded_table;
+use super::swap::{Current, Mailbox};
 use super::LightDarkSystem;
 use beliefbus_core::belief::Gaussian;
 use beliefbus_core::control::{ControlError, ControlInfo, Controller};
+use beliefbus_pomdp::chain_pomdp::ChainPomdp;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{self, Receiver, Sender, TryRecvError};
 use std::sync::Arc;
 use std::time::Instant;
 
 /// The background solve's handle.
 struct Background {
-    rx: Receiver<Box<FlatPolicy>>,
-    /// Replaced tables go back to the solver thread to be freed there.
-    retire: Sender<Box<FlatPolicy>>,
+    mailbox: Arc<Mailbox<FlatPolicy>>,
     stop: Arc<AtomicBool>,
 }
+
+/// Seed of the simulated episodes that choose a table's vectors.
+const PRUNE_SEED: u64 = 0x7072_756e_6573_6565;
 
 /// `pomdp`.
 pub struct PomdpController {
     sys: LightDarkSystem,
-    policy: Box<FlatPolicy>,
+    policy: Current<FlatPolicy>,
+    /// The full set the table came from: the background solve's seed
+    /// (moved to its thread when it starts).
+    full: Option<FlatPolicy>,
+    /// The policy in use is the full set; bound it at the first prepare.
+    unbounded: bool,
     version: u64,
     background: Option<Background>,
     /// The background solve ran (or is off).
     started: bool,
 }
 
+/// The control for action `a`: (velocity, 0), or (0, 1) for the terminal
+/// action.
+#[inline]
+pub fn write_action(cp: &ChainPomdp, a: usize, u: &mut [f64]) {
+    match cp.control(a) {
+        Some(c) => {
+            u[U_VELOCITY] = c[0];
+            u[U_DECLARE] = 0.0;
+        }
+        None => {
+            u[U_VELOCITY] = 0.0;
+            u[U_DECLARE] = 1.0;
+        }
+    }
+}
+
+/// The bounded table of `full` with the system's capacity.
+pub fn table_for(sys: &LightDarkSystem, full: &FlatPolicy, seed: u64) -> FlatPolicy {
+    let p = &sys.params.policy;
+    bounded_table(sys, full, p.lookup_capacity, p.prune_episodes, seed).0
+}
+
 impl PomdpController {
-    /// Load and check the policy file.
+    /// Load and check the policy file. The bounded table is built on the
+    /// first [`Controller::prepare`] (the stage's start), not here: config
+    /// validation builds controllers too, and needs only the check.
     pub fn new(sys: &LightDarkSystem) -> Result<Self, String> {
         let (p, lower) = sys.load_policy()?;
-        Ok(Self::with_policy(
-            sys,
-            FlatPolicy::new(&p, sys.pomdp.n_chain(), lower),
-        ))
+        let mut c = Self::with_policy(sys, FlatPolicy::new(&p, sys.pomdp.n_chain(), lower));
+        c.unbounded = true;
+        Ok(c)
     }
 
-    /// With a given policy (tests, and the loaded one).
+    /// Acting with the bounded table of `full`.
+    pub fn bounded(sys: &LightDarkSystem, full: FlatPolicy) -> Self {
+        let mut c = Self::with_policy(sys, full);
+        c.bound_table();
+        c
+    }
+
+    /// Replace the policy in use, taken as the full set, by its bounded
+    /// table (set-up: allocates).
+    pub fn bound_table(&mut self) {
+        self.unbounded = false;
+        let table = table_for(&self.sys, self.policy.get(), PRUNE_SEED);
+        self.full = Some(*self.policy.replace(Box::new(table)));
+    }
+
+    /// Acting with `policy` as given (every vector scanned).
     pub fn with_policy(sys: &LightDarkSystem, policy: FlatPolicy) -> Self {
         Self {
             sys: sys.clone(),
-            policy: Box::new(policy),
+            policy: Current::new(Box::new(policy)),
+            full: None,
+            unbounded: false,
             version: 0,
             background: None,
             started: sys.params.policy.refine_round_s <= 0.0
@@ -80,30 +133,18 @@ impl PomdpController {
 
     /// The policy in use and its version (0: the file's; +1 per swap).
     pub fn policy(&self) -> (&FlatPolicy, u64) {
-        (&self.policy, self.version)
+        (self.policy.get(), self.version)
     }
 
-    /// Take an improved policy if one is waiting; true if swapped.
+    /// Take an improved policy if one is waiting (a pointer exchange);
+    /// true if swapped.
     pub fn try_swap(&mut self) -> bool {
         let Some(bg) = &self.background else {
             return false;
         };
-        let mut swapped = false;
-        loop {
-            match bg.rx.try_recv() {
-                Ok(p) => {
-                    let old = std::mem::replace(&mut self.policy, p);
-                    // Freed by the solver thread (or here if it has ended).
-                    let _ = bg.retire.send(old);
-                    self.version += 1;
-                    swapped = true;
-                }
-                Err(TryRecvError::Empty) => break,
-                Err(TryRecvError::Disconnected) => {
-                    self.background = None;
-                    break;
-                }
-            }
+        let swapped = self.policy.take_from(&bg.mailbox);
+        if swapped {
+            self.version += 1;
         }
         swapped
     }
@@ -114,40 +155,31 @@ impl PomdpController {
             return;
         }
         self.started = true;
-        let (tx, rx) = mpsc::channel();
-        let (retire, retired) = mpsc::channel();
+        let mailbox = Arc::new(Mailbox::default());
         let stop = Arc::new(AtomicBool::new(false));
         let sys = self.sys.clone();
-        let first = (*self.policy).clone();
-        let flag = stop.clone();
+        let first = self
+            .full
+            .take()
+            .unwrap_or_else(|| self.policy.get().clone());
+        let (flag, out) = (stop.clone(), mailbox.clone());
         // SAFETY: sched_getcpu has no preconditions.
         let core = unsafe { libc::sched_getcpu() };
         let spawned = std::thread::Builder::new()
             .name("pomdp-solve".into())
             .spawn(move || {
                 demote_this_thread(core);
-                background_solve(sys, first, tx, retired, flag)
+                background_solve(sys, first, &out, flag)
             });
         if spawned.is_ok() {
-            self.background = Some(Background { rx, retire, stop });
+            self.background = Some(Background { mailbox, stop });
         }
     }
 
-    /// The control for chain distribution `b`, and the lookup time (ns).
+    /// The control for chain distribution `b`.
     #[inline]
     fn decide(&self, b: &[f64], u: &mut [f64]) {
-        let a = self.policy.act(b);
-        let cp = &self.sys.pomdp;
-        match cp.control(a) {
-            Some(c) => {
-                u[U_VELOCITY] = c[0];
-                u[U_DECLARE] = 0.0;
-            }
-            None => {
-                u[U_VELOCITY] = 0.0;
-                u[U_DECLARE] = 1.0;
-            }
-        }
+        write_action(&self.sys.pomdp, self.policy.get().act(b), u);
     }
 }
 
@@ -159,11 +191,13 @@ impl Drop for PomdpController {
     }
 }
 
-/// Lower the calling thread to SCHED_OTHER, nice 19 (Linux: both apply
-/// to the calling thread only), and move it off `core` (the control
-/// thread's) onto the machine's other cores, so the solver neither delays
-/// the control thread nor evicts its table from that core's caches.
-/// Failures leave the thread as it was.
+/// Lower the calling thread to SCHED_OTHER at nice 19 (Linux applies both
+/// to the calling thread only; not SCHED_IDLE, which starves it outright
+/// on a machine busy with other work, so no improved policy would ever
+/// arrive), and move it off `core`
+/// (the control thread's) onto the machine's other cores, so the solver
+/// neither delays the control thread nor evicts its table from that
+/// core's caches. Failures leave the thread as it was.
 fn demote_this_thread(core: i32) {
     let param = libc::sched_param { sched_priority: 0 };
     // SAFETY: sched_setscheduler / setpriority / sched_setaffinity on the
@@ -189,13 +223,12 @@ fn demote_this_thread(core: i32) {
     }
 }
 
-/// Rounds of `refine_round_s` from the policy in use; each that raises
-/// V̲(b₀) is sent to the controller.
+/// Rounds of `refine_round_s` from the full set in use; each that raises
+/// V̲(b₀) has its bounded table built here and offered to the controller.
 fn background_solve(
     sys: LightDarkSystem,
     first: FlatPolicy,
-    tx: Sender<Box<FlatPolicy>>,
-    retired: Receiver<Box<FlatPolicy>>,
+    mailbox: &Mailbox<FlatPolicy>,
     stop: Arc<AtomicBool>,
 ) {
     let cp = sys.pomdp.clone();
@@ -215,22 +248,24 @@ fn background_solve(
         .collect();
     let mut best = first.lower_b0;
     let p = &sys.params.policy;
-    for _ in 0..p.refine_rounds {
+    for round in 0..p.refine_rounds {
         if stop.load(Ordering::Relaxed) {
             return;
         }
         // Free the tables the controller replaced.
-        while retired.try_recv().is_ok() {}
+        mailbox.collect();
         let opts = sys.solve_options(p.refine_round_s, 1, seed.clone());
         let Ok(sol) = beliefbus_pomdp::solve(&cp.pomdp, &opts, |_| {}) else {
             return;
         };
         if sol.lower > best + 1e-9 * best.abs().max(1.0) {
             best = sol.lower;
-            let flat = Box::new(FlatPolicy::new(&sol.policy, n, sol.lower));
-            if tx.send(flat).is_err() {
+            let full = FlatPolicy::new(&sol.policy, n, sol.lower);
+            let table = table_for(&sys, &full, PRUNE_SEED.wrapping_add(round + 1));
+            if stop.load(Ordering::Relaxed) {
                 return;
             }
+            mailbox.publish(Box::new(table));
         }
         seed = sol
             .policy
@@ -254,9 +289,12 @@ impl Controller for PomdpController {
     /// The goal is the policy's.
     fn set_goal(&mut self, _goal: &[f64]) {}
     fn reset(&mut self) {}
-    /// Off the sensor→control path: start the background solve, swap in a
-    /// policy it published.
+    /// Off the sensor→control path: bound the table (first call), start the
+    /// background solve, swap in a policy it published.
     fn prepare(&mut self) {
+        if self.unbounded {
+            self.bound_table();
+        }
         self.start_background();
         self.try_swap();
     }
@@ -279,10 +317,10 @@ impl Controller for PomdpController {
                     .into(),
             )
         })?;
-        if b.len() != self.policy.n {
+        if b.len() != self.policy.get().n {
             return Err(ControlError::Dimension {
                 got: b.len(),
-                expected: self.policy.n,
+                expected: self.policy.get().n,
             });
         }
         if b.iter().any(|p| !p.is_finite()) {

@@ -38,6 +38,8 @@ pub mod metrics;
 pub mod model;
 pub mod plant;
 pub mod policy;
+pub mod prune;
+pub mod swap;
 
 use crate::backends::{ControlContext, FilterContext};
 use crate::metrics::RunMetrics;
@@ -112,6 +114,21 @@ pub struct LightDarkPolicyParams {
     pub refine_round_s: f64,
     /// At most this many background rounds.
     pub refine_rounds: u64,
+    /// Most α-vectors the on-line table holds (the lookup costs this many
+    /// dot products at most, whatever the solver's set grew to).
+    #[serde(default = "default_lookup_capacity")]
+    pub lookup_capacity: usize,
+    /// Simulated episodes whose beliefs choose the table's vectors.
+    #[serde(default = "default_prune_episodes")]
+    pub prune_episodes: u64,
+}
+
+fn default_lookup_capacity() -> usize {
+    128
+}
+
+fn default_prune_episodes() -> u64 {
+    600
 }
 
 impl Default for LightDarkParams {
@@ -135,6 +152,8 @@ impl Default for LightDarkParams {
                 precision: 1e-2,
                 refine_round_s: 2.0,
                 refine_rounds: 20,
+                lookup_capacity: default_lookup_capacity(),
+                prune_episodes: default_prune_episodes(),
             },
         }
     }
@@ -186,6 +205,12 @@ impl LightDarkParams {
             return Err(format!(
                 "policy.refine_round_s must be >= 0, got {}",
                 self.policy.refine_round_s
+            ));
+        }
+        if self.policy.lookup_capacity == 0 || self.policy.prune_episodes == 0 {
+            return Err(format!(
+                "policy.lookup_capacity and policy.prune_episodes must be >= 1, got {} and {}",
+                self.policy.lookup_capacity, self.policy.prune_episodes
             ));
         }
         if !(3..=encoding::MAX_CHAIN).contains(&self.states) {

@@ -68,6 +68,25 @@ impl FlatPolicy {
         }
     }
 
+    /// The table of vectors `keep` (indices into this one, in order).
+    pub fn subset(&self, keep: &[usize]) -> Self {
+        let mut alphas = Vec::with_capacity(keep.len() * self.n);
+        for &k in keep {
+            alphas.extend_from_slice(self.row(k));
+        }
+        Self {
+            n: self.n,
+            alphas,
+            actions: keep.iter().map(|&k| self.actions[k]).collect(),
+            lower_b0: self.lower_b0,
+        }
+    }
+
+    /// Vector k.
+    pub fn row(&self, k: usize) -> &[f64] {
+        &self.alphas[k * self.n..(k + 1) * self.n]
+    }
+
     /// Vectors in the table.
     pub fn len(&self) -> usize {
         self.actions.len()
@@ -310,7 +329,11 @@ pub fn solve(sys: &LightDarkSystem, req: SolveRequest) -> Result<SolveOutcome, S
     let text = sys.policy_text(&sol.policy, sol.lower, sol.upper, sol.time_s);
     std::fs::write(&path, text).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
     let flat = FlatPolicy::new(&sol.policy, cp.n_chain(), sol.lower);
-    let lookup_ns = time_lookup(&flat, 200_000);
+    let pp = &sys.params.policy;
+    let (table, pruned) =
+        super::prune::bounded_table(sys, &flat, pp.lookup_capacity, pp.prune_episodes, 1);
+    let lookup_ns = time_lookup(&table, 200_000);
+    let full_ns = time_lookup(&flat, 200_000);
     Ok(SolveOutcome {
         path,
         seconds: started.elapsed().as_secs_f64(),
@@ -319,10 +342,15 @@ pub fn solve(sys: &LightDarkSystem, req: SolveRequest) -> Result<SolveOutcome, S
             ("upper_b0".into(), format!("{:.3}", sol.upper)),
             ("converged".into(), sol.converged.to_string()),
             ("vectors".into(), sol.policy.vectors.len().to_string()),
-            ("lookup_vectors".into(), flat.len().to_string()),
+            ("undominated_vectors".into(), flat.len().to_string()),
+            ("lookup_vectors".into(), table.len().to_string()),
+            ("table_maximisers".into(), pruned.maximisers.to_string()),
+            ("table_beliefs".into(), pruned.beliefs.to_string()),
+            ("table_loss".into(), format!("{:.3e}", pruned.loss)),
             ("trials".into(), sol.trials.to_string()),
             ("period_s".into(), format!("{:.4}", cp.period)),
             ("lookup_ns".into(), format!("{lookup_ns:.0}")),
+            ("full_lookup_ns".into(), format!("{full_ns:.0}")),
         ],
     })
 }

@@ -216,6 +216,87 @@ fn the_solved_policy_reaches_the_goal_in_most_episodes() {
 }
 
 #[test]
+fn the_bounded_table_acts_as_the_full_set_at_the_beliefs_it_was_built_for() {
+    let sys = system(|p| p.policy.refine_round_s = 0.0);
+    let (pol, lower) = solved(&sys, 2.0);
+    let full = FlatPolicy::new(&pol, 20, lower);
+    let beliefs = prune::sample_beliefs(&sys, &full, 200, 3);
+    assert!(beliefs.len() >= 200 * 20);
+    // Unbounded: every maximiser kept, the same action and value bit for
+    // bit, and far fewer vectors than the solver's set.
+    let (table, maximisers, loss) = prune::select(&full, &beliefs, usize::MAX);
+    assert_eq!((table.len(), loss), (maximisers, 0.0));
+    assert!(
+        2 * table.len() < full.len(),
+        "{} of {}",
+        table.len(),
+        full.len()
+    );
+    for b in beliefs.chunks_exact(20) {
+        assert_eq!(table.act(b), full.act(b));
+        assert_eq!(table.best(b).1, full.best(b).1);
+    }
+    // Half the capacity: the loss reported is the largest value lost at
+    // these beliefs, and no belief loses more.
+    let cap = (maximisers / 2).max(1);
+    let (small, m, loss) = prune::select(&full, &beliefs, cap);
+    assert_eq!((small.len(), m), (cap, maximisers));
+    let mut worst = 0.0f64;
+    for b in beliefs.chunks_exact(20) {
+        let d = full.best(b).1 - small.best(b).1;
+        assert!(d >= 0.0 && d <= loss, "{d} vs {loss}");
+        worst = worst.max(d);
+    }
+    assert!(loss > 0.0);
+    assert_eq!(worst, loss);
+}
+
+#[test]
+fn the_bounded_tables_loss_elsewhere_is_within_its_lipschitz_bound() {
+    let sys = system(|p| p.policy.refine_round_s = 0.0);
+    let (pol, lower) = solved(&sys, 2.0);
+    let full = FlatPolicy::new(&pol, 20, lower);
+    // A capacity below the maximisers' count, so the loss is not zero.
+    let (table, rep) = prune::bounded_table(&sys, &full, 6, 60, 11);
+    assert_eq!(table.len(), 6);
+    assert!(rep.maximisers > 6 && rep.loss > 0.0);
+    let sampled = prune::sample_beliefs(&sys, &full, 60, 11);
+    // Beliefs of another seed: V_full − V_table ≤ loss + 2 L ‖b − b′‖₁
+    // at the nearest belief b′ of the first pass (a subset of B).
+    let fresh = prune::sample_beliefs(&sys, &full, 10, 99);
+    for b in fresh.chunks_exact(20).take(300) {
+        let d = full.best(b).1 - table.best(b).1;
+        let near = sampled
+            .chunks_exact(20)
+            .map(|c| c.iter().zip(b).map(|(x, y)| (x - y).abs()).sum::<f64>())
+            .fold(f64::INFINITY, f64::min);
+        let bound = rep.loss + 2.0 * rep.slope * near;
+        assert!(d >= 0.0 && d <= bound * (1.0 + 1e-12), "{d} > {bound}");
+    }
+}
+
+#[test]
+fn the_bounded_table_reaches_the_goal_as_the_full_set_does() {
+    let sys = system(|p| p.policy.refine_round_s = 0.0);
+    let (pol, lower) = solved(&sys, 5.0);
+    let full = FlatPolicy::new(&pol, 20, lower);
+    let mut ctl = PomdpController::bounded(&sys, full.clone());
+    let table = ctl.policy().0.len();
+    assert!(table <= sys.params.policy.lookup_capacity && table < full.len());
+    let (n, goals) = closed_loop(&sys, &mut ctl, 300);
+    let mut all = PomdpController::with_policy(&sys, full);
+    let (n_all, goals_all) = closed_loop(&sys, &mut all, 300);
+    // Same plant seed: 95 % Wilson intervals overlap, and above 70 %.
+    let (lo, hi) = metrics::wilson(goals, n);
+    let (lo_all, hi_all) = metrics::wilson(goals_all, n_all);
+    assert!(lo > 0.7, "{goals}/{n} with {table} vectors");
+    assert!(
+        lo <= hi_all && lo_all <= hi,
+        "{goals}/{n} vs {goals_all}/{n_all}"
+    );
+}
+
+#[test]
 fn the_background_solve_publishes_better_policies_the_controller_swaps_in() {
     let sys = system(|p| {
         p.policy.refine_round_s = 0.5;
