@@ -83,7 +83,7 @@ impl ImplicitSlam {
 /// Sample a new landmark given the pose x: θ = g(x, z) + L⁻ᵀ ξ with
 /// LLᵀ the Hessian of ½‖z − h(x, θ)‖²_{Σ₂⁻¹} at its minimiser g(x, z);
 /// returns θ and ½ ξᵀξ − F(θ) − log det L.
-fn sample_given_pose(
+pub(super) fn sample_given_pose(
     x: &Pose,
     z: &RangeBearing,
     model: &SlamModel,
