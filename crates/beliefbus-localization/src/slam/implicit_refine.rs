@@ -18,15 +18,20 @@
 //! stays, so the map is refined only by selection; here each sighting
 //! redraws it from everything the particle has seen of it.
 //!
-//! With several known returns in a step the first is redrawn and the
-//! others enter F^j with their current θ (their sightings are recorded);
-//! the synthetic car park has one return per step.
+//! With several returns in a step every feature they see, new or known, is
+//! drawn jointly with the pose from one F^j over (x, θ_1, …, θ_p), whose
+//! arrow-shaped Hessian is factored in O(p) ([`super::arrow`]); with one
+//! return it is the 5-D F^j above. Should Newton fail, the particle moves
+//! by the motion model, its known features stay and weigh it (reading
+//! (i)'s fallback), new ones are drawn given the pose; fallbacks are
+//! counted.
 
+use super::arrow::Arrow;
 use super::assoc::{inverse, near, Association, Chooser, RangeBearing};
 use super::implicit::sample_given_pose;
 use super::joint::JointObjective;
 use super::particles::SlamParticles;
-use super::refine::{backward_term, cov_block, linear_map, newton, Objective};
+use super::refine::{backward_term, Objective};
 use super::refined_map::{Past, RefinedLandmark};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
@@ -35,7 +40,7 @@ use crate::geometry::{Point, Pose};
 use crate::laser::{add_term, term_cost, Curvature, Observation};
 use crate::mcl::newton::NewtonSettings;
 use beliefbus_core::rng::SimRng;
-use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3, Vector5};
+use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
 use rand::RngExt;
 use rand_distr::StandardNormal;
 
@@ -100,10 +105,14 @@ pub struct ImplicitRefineSlam {
     pub newton: NewtonSettings,
     stats: SlamStats,
     step: usize,
-    known: Vec<(usize, RangeBearing)>,
-    fixed_obs: Vec<Observation>,
-    fixed_map: Vec<Point>,
-    new_obs: Vec<RangeBearing>,
+    arrow: Arrow,
+    /// Per return: its association.
+    assoc: Vec<Association>,
+    /// Per block of the arrow: the landmark index (None: new).
+    block_lm: Vec<Option<usize>>,
+    zs: Vec<RangeBearing>,
+    xi_t: Vec<Vector2<f64>>,
+    th_draw: Vec<Point>,
 }
 
 impl ImplicitRefineSlam {
@@ -120,16 +129,14 @@ impl ImplicitRefineSlam {
             newton,
             stats: SlamStats::default(),
             step: 0,
-            known: Vec::with_capacity(32),
-            fixed_obs: Vec::with_capacity(32),
-            fixed_map: Vec::with_capacity(32),
-            new_obs: Vec::with_capacity(32),
+            arrow: Arrow::default(),
+            assoc: Vec::with_capacity(32),
+            block_lm: Vec::with_capacity(32),
+            zs: Vec::with_capacity(32),
+            xi_t: Vec::with_capacity(32),
+            th_draw: Vec::with_capacity(32),
         })
     }
-}
-
-fn xi5(rng: &mut SimRng) -> Vector5<f64> {
-    Vector5::from_fn(|_, _| rng.sample(StandardNormal))
 }
 
 impl SlamFilter for ImplicitRefineSlam {
@@ -173,11 +180,7 @@ impl SlamFilter for ImplicitRefineSlam {
             let t = crate::geometry::frame_rotation(x[2]);
             let sx = t * s0 * t.transpose();
             let prec = noise.precision(x[2]);
-            self.known.clear();
-            self.fixed_obs.clear();
-            self.fixed_map.clear();
-            self.new_obs.clear();
-            let mut discarded = 0usize;
+            self.assoc.clear();
             let map = &self.set.maps[j];
             for z in obs {
                 let (zp, _, _) = inverse(&f, z);
@@ -189,128 +192,129 @@ impl SlamFilter for ImplicitRefineSlam {
                         ch.offer(k, &nu, &s, &model.assoc);
                     }
                 }
-                match ch.decide(&model.assoc) {
-                    Association::Known(k) => self.known.push((k, *z)),
-                    Association::New => self.new_obs.push(*z),
+                self.assoc.push(ch.decide(&model.assoc));
+            }
+            // One block per distinct known landmark (all its returns), one
+            // per new return.
+            self.arrow.begin(f, prec, model.laser);
+            self.block_lm.clear();
+            let (mut n_ret, mut n_new, mut discarded) = (0usize, 0usize, 0usize);
+            for (i, a) in self.assoc.iter().enumerate() {
+                match *a {
+                    Association::Known(k) if !self.block_lm.contains(&Some(k)) => {
+                        self.zs.clear();
+                        for (z, b) in obs.iter().zip(&self.assoc).skip(i) {
+                            if *b == Association::Known(k) {
+                                self.zs.push(*z);
+                            }
+                        }
+                        let lm = *map.get(k).ok_or_else(|| bad("landmark"))?;
+                        self.arrow.push(Some(lm), &self.zs, lm.m);
+                        self.block_lm.push(Some(k));
+                        n_ret += self.zs.len();
+                    }
+                    Association::Known(_) => {}
+                    Association::New => {
+                        let (m0, _, _) = inverse(&f, &obs[i]);
+                        self.arrow.push(None, std::slice::from_ref(&obs[i]), m0);
+                        self.block_lm.push(None);
+                        n_ret += 1;
+                        n_new += 1;
+                    }
                     Association::Discard => discarded += 1,
                 }
             }
-            self.stats.known += self.known.len();
-            self.stats.new += self.new_obs.len();
+            self.stats.known += n_ret - n_new;
+            self.stats.new += n_new;
             self.stats.discarded += discarded;
             let mut lw = discarded as f64 * log_new;
-            let mut new_start = 0;
-            let xn;
-            if let Some(&(k0, z0)) = self.known.first() {
-                for (i, &(k, z)) in self.known.iter().enumerate().skip(1) {
-                    self.fixed_obs.push(Observation {
-                        range: z.range,
-                        bearing: z.bearing,
-                        landmark: i - 1,
-                    });
-                    self.fixed_map
-                        .push(map.get(k).ok_or_else(|| bad("landmark"))?.m);
-                }
-                let lm0 = *map.get(k0).ok_or_else(|| bad("landmark"))?;
-                let obj = SightingObjective {
-                    joint: JointObjective {
-                        f,
-                        prec,
-                        z: z0,
-                        laser: model.laser,
-                    },
-                    past: Some(&lm0),
-                    fixed_obs: &self.fixed_obs,
-                    fixed_map: &self.fixed_map,
-                };
-                let xi = xi5(rng);
-                let old = SVector::<f64, 2>::new(lm0.m[0], lm0.m[1]);
-                let v0 = Vector5::new(f[0], f[1], f[2], old[0], old[1]);
-                let past = Past {
-                    lm: &lm0,
-                    laser: model.laser,
-                };
-                let sample = newton(&obj, v0, it, tol).and_then(|m| {
+            let p = self.arrow.len();
+            let xi_x = normal3(rng);
+            self.xi_t.clear();
+            for _ in 0..p {
+                self.xi_t.push(Vector2::new(
+                    rng.sample(StandardNormal),
+                    rng.sample(StandardNormal),
+                ));
+            }
+            let mut xn = f + noise.draw(x[2], &xi_x);
+            let mut drawn = false;
+            if p > 0 {
+                let arrow = &mut self.arrow;
+                if let Some(m) = arrow.minimise(it, tol) {
                     self.stats.newton_iters += m.iters;
-                    let (v, inc) = linear_map(&obj, &m, &xi)?;
-                    let (back, _) = backward_term(&past, &old, it, tol)?;
-                    Some((v, inc + back, cov_block(&m.l, 3)?))
-                });
-                let nk = self.known.len() as f64;
-                lw -= nk * (ln2pi + half_logdet_r);
-                let mut lm = lm0;
-                match sample {
-                    Some((v, inc, cov)) => {
-                        xn = Pose::new(v[0], v[1], v[2]);
-                        lw += inc + motion_norm;
-                        lm.m = [v[3], v[4]];
-                        lm.cov = cov;
-                    }
-                    None => {
-                        self.stats.fallbacks += 1;
-                        xn = f + noise.draw(x[2], &Vector3::new(xi[0], xi[1], xi[2]));
-                        let o = Observation {
-                            range: z0.range,
-                            bearing: z0.bearing,
-                            landmark: 0,
-                        };
-                        lw -= term_cost(&xn, lm.m, &o, &model.laser);
-                        for o in &self.fixed_obs {
-                            lw -= term_cost(&xn, self.fixed_map[o.landmark], o, &model.laser);
+                    if let Some(inc) = arrow.draw(&xi_x, &self.xi_t, &mut xn, &mut self.th_draw) {
+                        let mut back = 0.0;
+                        for blk in &arrow.blocks {
+                            if let Some(lm) = &blk.past {
+                                let past = Past {
+                                    lm,
+                                    laser: model.laser,
+                                };
+                                let old = SVector::<f64, 2>::new(lm.m[0], lm.m[1]);
+                                match backward_term(&past, &old, it, tol) {
+                                    Some((b, _)) => back += b,
+                                    None => back = f64::NAN,
+                                }
+                            }
+                        }
+                        if back.is_finite() {
+                            lw += inc + back + motion_norm
+                                - n_ret as f64 * half_logdet_r
+                                - (n_ret - n_new) as f64 * ln2pi
+                                + n_new as f64 * log_new;
+                            drawn = true;
                         }
                     }
                 }
-                lm.add_sighting(&xn, &z0, &rinv);
-                let map = &mut self.set.maps[j];
-                map.set(k0, lm);
-                for &(k, z) in self.known.iter().skip(1) {
-                    let mut other = *map.get(k).ok_or_else(|| bad("landmark"))?;
-                    other.add_sighting(&xn, &z, &rinv);
-                    map.set(k, other);
+                if !drawn {
+                    self.stats.fallbacks += 1;
+                    xn = f + noise.draw(x[2], &xi_x);
                 }
-            } else if let Some(z0) = self.new_obs.first().copied() {
-                let obj = SightingObjective {
-                    joint: JointObjective {
-                        f,
-                        prec,
-                        z: z0,
-                        laser: model.laser,
-                    },
-                    past: None,
-                    fixed_obs: &[],
-                    fixed_map: &[],
-                };
-                let xi = xi5(rng);
-                let (m0, _, _) = inverse(&f, &z0);
-                let v0 = Vector5::new(f[0], f[1], f[2], m0[0], m0[1]);
-                let sample = newton(&obj, v0, it, tol).and_then(|m| {
-                    self.stats.newton_iters += m.iters;
-                    let (v, inc) = linear_map(&obj, &m, &xi)?;
-                    Some((v, inc, cov_block(&m.l, 3)?))
-                });
-                match sample {
-                    Some((v, inc, cov)) => {
-                        xn = Pose::new(v[0], v[1], v[2]);
-                        lw += inc + motion_norm - half_logdet_r + log_new;
-                        self.set.maps[j].push(RefinedLandmark::new([v[3], v[4]], cov, &xn, &z0));
-                        new_start = 1;
-                    }
-                    None => {
-                        self.stats.fallbacks += 1;
-                        xn = f + noise.draw(x[2], &Vector3::new(xi[0], xi[1], xi[2]));
-                    }
-                }
-            } else {
-                xn = f + noise.draw(x[2], &normal3(rng));
-            }
-            for z in &self.new_obs[new_start..] {
-                let (th, inc) =
-                    sample_given_pose(&xn, z, &model, rng).ok_or(bad("new landmark sample"))?;
-                lw += inc - half_logdet_r + log_new;
-                self.set.maps[j].push(RefinedLandmark::new(th.m, th.cov, &xn, z));
             }
             if !xn.iter().all(|c| c.is_finite()) {
                 return Err(bad("implicit-refine pose"));
+            }
+            let map = &mut self.set.maps[j];
+            for (b, blk) in self.arrow.blocks.iter().enumerate() {
+                let zs = &self.arrow.returns[blk.start..blk.start + blk.len];
+                match (self.block_lm[b], blk.past) {
+                    (Some(k), Some(mut lm)) => {
+                        if drawn {
+                            lm.m = self.th_draw[b];
+                            lm.cov = self.arrow.cov(b).ok_or_else(|| bad("feature covariance"))?;
+                        } else {
+                            // Motion-model fallback: the feature stays, the
+                            // returns weigh the pose (reading (i)'s step).
+                            for z in zs {
+                                let o = Observation {
+                                    range: z.range,
+                                    bearing: z.bearing,
+                                    landmark: 0,
+                                };
+                                lw -=
+                                    term_cost(&xn, lm.m, &o, &model.laser) + ln2pi + half_logdet_r;
+                            }
+                        }
+                        for z in zs {
+                            lm.add_sighting(&xn, z, &rinv);
+                        }
+                        map.set(k, lm);
+                    }
+                    _ => {
+                        let z0 = zs[0];
+                        let lm = if drawn {
+                            let cov = self.arrow.cov(b).ok_or_else(|| bad("feature covariance"))?;
+                            RefinedLandmark::new(self.th_draw[b], cov, &xn, &z0)
+                        } else {
+                            let (th, inc) = sample_given_pose(&xn, &z0, &model, rng)
+                                .ok_or(bad("new landmark sample"))?;
+                            lw += inc - half_logdet_r + log_new;
+                            RefinedLandmark::new(th.m, th.cov, &xn, &z0)
+                        };
+                        map.push(lm);
+                    }
+                }
             }
             self.set.x[j] = xn;
             self.set.logw[j] += lw;

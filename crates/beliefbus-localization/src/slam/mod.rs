@@ -20,6 +20,9 @@
 //! half circle (area A = π r_max²/2), which fixes the weight of a new
 //! landmark against a re-observed one: r/A after θ is integrated out.
 
+pub mod arrow;
+#[cfg(test)]
+mod arrow_tests;
 pub mod assoc;
 pub mod driver;
 pub mod ekf;
