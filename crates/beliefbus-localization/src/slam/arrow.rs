@@ -302,7 +302,14 @@ impl Arrow {
                 if fv <= val - 1e-4 * t * dec {
                     self.x = xt;
                     std::mem::swap(&mut self.th, &mut self.th_try);
-                    val = self.eval_factor()?;
+                    // The trial's exact derivatives are the new point's:
+                    // factor them, re-evaluating only for Gauss–Newton.
+                    if Self::factor(&self.dn, &mut self.fac) {
+                        std::mem::swap(&mut self.d, &mut self.dn);
+                        val = fv;
+                    } else {
+                        val = self.eval_factor()?;
+                    }
                     accepted = true;
                     break;
                 }
