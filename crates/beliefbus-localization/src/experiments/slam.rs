@@ -1,6 +1,10 @@
 //! Paper 003 Table 6 (Fig. 7 right): implicit SLAM, FastSLAM 1.0 and 2.0
 //! against the number of samples, with EKF-SLAM as reference, on synthetic
-//! car parks driven by the Victoria Park odometry.
+//! car parks driven by the Victoria Park odometry. Implicit SLAM runs in
+//! two readings: `implicit` (the notes' §1.7 reading (i): a feature is
+//! drawn once) and `implicit-refine` (a re-observed feature is drawn again
+//! from its exact sightings, [`crate::slam::implicit_refine`]);
+//! `implicit-rb` is a Rao–Blackwellised comparison, not the paper's.
 //!
 //! Each run draws one data set ([`crate::carpark`], as the `mcl`
 //! experiment) and, at each scan, one of the visible landmarks at random
