@@ -27,6 +27,16 @@ pub fn acceptance(methods: &[(&str, usize)], per: &[Vec<RunMetrics>]) -> Vec<Str
         (("implicit", 100), ("ekf", 1), "paper: 2.98% vs 3.89%"),
         (("fastslam2", 500), ("ekf", 1), "paper: 4.71% vs 3.89%"),
         (
+            ("implicit-refine", 100),
+            ("fastslam2", 400),
+            "refined re-observations; paper: 2.98% vs 4.83%",
+        ),
+        (
+            ("implicit-refine", 100),
+            ("ekf", 1),
+            "refined re-observations; paper: 2.98% vs 3.89%",
+        ),
+        (
             ("implicit-rb", 100),
             ("fastslam2", 400),
             "variant, not in the paper",
@@ -61,7 +71,13 @@ pub fn acceptance(methods: &[(&str, usize)], per: &[Vec<RunMetrics>]) -> Vec<Str
             .min_by(|&a, &b| mean(a).total_cmp(&mean(b)))
     };
     let mut line = String::from("best error per method:");
-    for name in ["implicit", "implicit-rb", "fastslam1", "fastslam2"] {
+    for name in [
+        "implicit",
+        "implicit-refine",
+        "implicit-rb",
+        "fastslam1",
+        "fastslam2",
+    ] {
         if let Some(b) = best(name) {
             line += &format!(" {name} {:.3}% (M = {})", mean(b), methods[b].1);
         }

@@ -14,7 +14,14 @@ pub fn write_plot(path: &str, rep: &Report) -> Result<(), LocalizationError> {
         18.0,
         "SLAM: time per update vs trajectory error (paper 003 Table 6 / Fig. 7 right)",
     );
-    let methods = ["implicit", "fastslam1", "fastslam2", "ekf", "implicit-rb"];
+    let methods = [
+        "implicit",
+        "fastslam1",
+        "fastslam2",
+        "ekf",
+        "implicit-rb",
+        "implicit-refine",
+    ];
     for (k, (title, rows)) in [
         (
             "ours: synthetic car park on Victoria Park odometry",

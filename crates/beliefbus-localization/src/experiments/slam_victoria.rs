@@ -39,7 +39,7 @@ pub const PARAMS: &[ParamDoc] = &[
         "= $BELIEFBUS_VICTORIA_PARK or ../shared/data/victoria-park",
         "Victoria Park folder (odometry.csv, gps.csv, derived/trees_detectTreesI16.csv), read in place",
     ),
-    p("methods", "implicit,fastslam2,ekf", "methods to run (implicit, implicit-rb, fastslam1, fastslam2, ekf)"),
+    p("methods", "implicit,fastslam2,ekf", "methods to run (implicit, implicit-refine, implicit-rb, fastslam1, fastslam2, ekf)"),
     p("samples", "100", "sample sizes of the particle methods"),
     p("end_time_s", "1e9", "stop at this time on the data set's clock (s); default: the whole run"),
     p("start_heading_deg", "36", "initial heading (degrees, from east, counter-clockwise)"),
@@ -110,7 +110,16 @@ pub fn run(
         &["implicit".to_string(), "fastslam2".into(), "ekf".into()],
     )?;
     for m in &methods {
-        if !["implicit", "implicit-rb", "fastslam1", "fastslam2", "ekf"].contains(&m.as_str()) {
+        if ![
+            "implicit",
+            "implicit-refine",
+            "implicit-rb",
+            "fastslam1",
+            "fastslam2",
+            "ekf",
+        ]
+        .contains(&m.as_str())
+        {
             return Err(LocalizationError::Param {
                 key: "methods".into(),
                 msg: format!("unknown method '{m}'"),
@@ -341,7 +350,7 @@ fn acceptance(rows: &[Row]) -> Vec<String> {
             .and_then(|r| r.get("rms_m"))
     };
     let mut out = vec![];
-    for name in ["implicit", "implicit-rb"] {
+    for name in ["implicit", "implicit-refine", "implicit-rb"] {
         if let (Some(i), Some(f), Some(e)) = (get(name, 100), get("fastslam2", 100), get("ekf", 1))
         {
             out.push(format!(

@@ -5,6 +5,9 @@
 //!   positions; a new feature is sampled jointly with the pose from the 5-D
 //!   F^j(x_n, θ_n) ([`joint`]), a re-observed one gives the implicit MCL
 //!   step with the particle's landmark fixed (the notes' §1.7 reading (i));
+//! - [`implicit_refine::ImplicitRefineSlam`]: the same, but a re-observed
+//!   feature is drawn again jointly with the pose from F^j(x_n, θ_n) with
+//!   the particle's earlier sightings as exact terms ([`refine`]);
 //! - [`fastslam::FastSlam`]: FastSLAM 1.0 (motion-model proposal) and 2.0
 //!   (proposal including the observation), per-landmark EKFs;
 //! - [`ekf::EkfSlam`]: the joint-state EKF, augmented on a new landmark.
@@ -17,15 +20,23 @@
 //! half circle (area A = π r_max²/2), which fixes the weight of a new
 //! landmark against a re-observed one: r/A after θ is integrated out.
 
+pub mod arrow;
+#[cfg(test)]
+mod arrow_tests;
 pub mod assoc;
 pub mod driver;
 pub mod ekf;
 pub mod fastslam;
 pub mod implicit;
 pub mod implicit_rb;
+pub mod implicit_refine;
 pub mod joint;
 pub mod map;
 pub mod particles;
+pub mod refine;
+#[cfg(test)]
+mod refine_tests;
+pub mod refined_map;
 #[cfg(test)]
 mod tests;
 

@@ -314,3 +314,18 @@ fn implicit_rb_slam_error_falls_with_samples() {
         )
     });
 }
+
+#[test]
+fn implicit_refine_slam_error_falls_with_samples() {
+    assert_falls("implicit-refine", &|m| {
+        Box::new(
+            super::implicit_refine::ImplicitRefineSlam::new(
+                model(),
+                m,
+                0.5,
+                NewtonSettings::default(),
+            )
+            .unwrap(),
+        )
+    });
+}
