@@ -17,6 +17,9 @@
 //! - `implicit-slam`: [`ImplicitSlam`] (per-particle pose and sampled map;
 //!   a new feature from the joint 5-D F^j, a re-observed one by the implicit
 //!   MCL step);
+//! - `implicit-refine-slam`: [`ImplicitRefineSlam`] (as `implicit-slam`, but
+//!   a re-observed feature is drawn again jointly with the pose, its earlier
+//!   sightings entering exactly: the map keeps improving; docs/slam.md);
 //! - `fastslam2`: [`FastSlam`] 2.0 (per-landmark EKFs, observation in the
 //!   proposal);
 //! - `ekf-slam`: [`EkfSlam`], the joint-state EKF.
@@ -57,6 +60,7 @@ use beliefbus_localization::slam::assoc::RangeBearing;
 use beliefbus_localization::slam::ekf::EkfSlam;
 use beliefbus_localization::slam::fastslam::{FastSlam, Version};
 use beliefbus_localization::slam::implicit::ImplicitSlam;
+use beliefbus_localization::slam::implicit_refine::ImplicitRefineSlam;
 use beliefbus_localization::slam::particles::SlamParticles;
 use beliefbus_localization::slam::{SlamFilter, SlamModel};
 use beliefbus_localization::vehicle::Control;
@@ -65,10 +69,11 @@ use std::f64::consts::PI;
 
 /// Backend names.
 pub const IMPLICIT_SLAM: &str = "implicit-slam";
+pub const IMPLICIT_REFINE_SLAM: &str = "implicit-refine-slam";
 pub const FASTSLAM2: &str = "fastslam2";
 pub const EKF_SLAM: &str = "ekf-slam";
 /// Every SLAM backend.
-pub const BACKENDS: [&str; 3] = [IMPLICIT_SLAM, FASTSLAM2, EKF_SLAM];
+pub const BACKENDS: [&str; 4] = [IMPLICIT_SLAM, IMPLICIT_REFINE_SLAM, FASTSLAM2, EKF_SLAM];
 /// The pose (x, y, β).
 pub const POSE: usize = 3;
 /// The belief component holding the map's landmark count.
@@ -98,6 +103,7 @@ pub struct LiveSlamConfig {
 #[derive(Debug)]
 enum Slam {
     Implicit(Box<ImplicitSlam>),
+    Refine(Box<ImplicitRefineSlam>),
     Fast(Box<FastSlam>),
     Ekf(Box<EkfSlam>),
 }
@@ -106,6 +112,7 @@ impl Slam {
     fn get(&mut self) -> &mut dyn SlamFilter {
         match self {
             Slam::Implicit(f) => f.as_mut(),
+            Slam::Refine(f) => f.as_mut(),
             Slam::Fast(f) => f.as_mut(),
             Slam::Ekf(f) => f.as_mut(),
         }
@@ -113,6 +120,7 @@ impl Slam {
     fn get_ref(&self) -> &dyn SlamFilter {
         match self {
             Slam::Implicit(f) => f.as_ref(),
+            Slam::Refine(f) => f.as_ref(),
             Slam::Fast(f) => f.as_ref(),
             Slam::Ekf(f) => f.as_ref(),
         }
@@ -121,6 +129,7 @@ impl Slam {
     fn map_len(&self) -> usize {
         match self {
             Slam::Implicit(f) => f.set.maps[f.set.best()].len(),
+            Slam::Refine(f) => f.set.maps[f.set.best()].len(),
             Slam::Fast(f) => f.set.maps[f.set.best()].len(),
             Slam::Ekf(f) => f.state.landmarks(),
         }
@@ -141,6 +150,7 @@ impl Slam {
         }
         match self {
             Slam::Implicit(f) => scatter(&f.set, mean),
+            Slam::Refine(f) => scatter(&f.set, mean),
             Slam::Fast(f) => scatter(&f.set, mean),
             Slam::Ekf(f) => {
                 let p = f.state.pose_cov();
@@ -200,6 +210,10 @@ impl LiveSlam {
             IMPLICIT_SLAM => {
                 ImplicitSlam::new(cfg.model, cfg.particles, cfg.ess_threshold, cfg.newton)
                     .map(|f| (IMPLICIT_SLAM, Slam::Implicit(Box::new(f))))
+            }
+            IMPLICIT_REFINE_SLAM => {
+                ImplicitRefineSlam::new(cfg.model, cfg.particles, cfg.ess_threshold, cfg.newton)
+                    .map(|f| (IMPLICIT_REFINE_SLAM, Slam::Refine(Box::new(f))))
             }
             FASTSLAM2 => FastSlam::new(cfg.model, Version::Two, cfg.particles, cfg.ess_threshold)
                 .map(|f| (FASTSLAM2, Slam::Fast(Box::new(f)))),
@@ -329,6 +343,7 @@ impl LiveSlam {
     fn current_ess(&self) -> f64 {
         let w = match &self.slam {
             Slam::Implicit(f) => &f.set.w,
+            Slam::Refine(f) => &f.set.w,
             Slam::Fast(f) => &f.set.w,
             Slam::Ekf(_) => return 1.0,
         };

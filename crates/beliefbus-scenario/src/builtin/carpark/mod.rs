@@ -27,7 +27,7 @@
 //! - `filter.backend = "mcl"`: standard MCL, the same models and data;
 //!
 //! both on the map known to the filter;
-//! - `filter.backend = "implicit-slam"`, `"fastslam2"`, `"ekf-slam"`: SLAM,
+//! - `filter.backend = "implicit-slam"`, `"implicit-refine-slam"`, `"fastslam2"`, `"ekf-slam"`: SLAM,
 //!   the map unknown, the landmark index ignored ([`super::live_slam`]; the
 //!   belief carries the map's landmark count after the pose);
 //!

@@ -11,7 +11,7 @@
 //!   (r₁, b₁, d₁, r₂, b₂, d₂), range (m), bearing (rad, laser frame, π/2
 //!   ahead) and trunk diameter (m); an empty slot is (0, 0, −1).
 //!
-//! Filter backends `implicit-slam`, `fastslam2`, `ekf-slam`
+//! Filter backends `implicit-slam`, `implicit-refine-slam`, `fastslam2`, `ekf-slam`
 //! ([`super::live_slam`]): the same filters, models, gates and start as the
 //! offline `beliefbus experiment slam-victoria-park` (state: the laser
 //! point; start: the first kept GPS fix, heading `start_heading_deg`). The

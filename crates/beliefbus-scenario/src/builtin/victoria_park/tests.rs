@@ -8,7 +8,9 @@ use super::data::{assemble, parse_trees, Run, Tree};
 use super::metrics::{fix_steps, VictoriaParkMetrics};
 use super::plant::VictoriaParkPlant;
 use super::*;
-use crate::builtin::live_slam::{LiveSlam, BACKENDS, EKF_SLAM, FASTSLAM2, MAP_COMPONENT};
+use crate::builtin::live_slam::{
+    LiveSlam, BACKENDS, EKF_SLAM, FASTSLAM2, IMPLICIT_REFINE_SLAM, MAP_COMPONENT,
+};
 use crate::metrics::{BeliefView, TruthView};
 use crate::{NextSample, Plant};
 use beliefbus_core::belief::Gaussian;
@@ -242,6 +244,12 @@ fn live_slam_follows_the_filter_stepped_on_the_recording() {
         let mut direct: Box<dyn SlamFilter> = match name {
             EKF_SLAM => Box::new(EkfSlam::new(cfg.model).unwrap()),
             FASTSLAM2 => Box::new(FastSlam::new(cfg.model, Version::Two, 20, 0.5).unwrap()),
+            IMPLICIT_REFINE_SLAM => Box::new(
+                beliefbus_localization::slam::implicit_refine::ImplicitRefineSlam::new(
+                    cfg.model, 20, 0.5, cfg.newton,
+                )
+                .unwrap(),
+            ),
             _ => Box::new(ImplicitSlam::new(cfg.model, 20, 0.5, cfg.newton).unwrap()),
         };
         direct.reset(&sys.start);
