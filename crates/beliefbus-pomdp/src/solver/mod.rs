@@ -250,7 +250,9 @@ pub fn solve(
     report(&mut lb, &mut ub, 0, true);
     let mut converged = ub.value(&b0) - lb.value(&b0) <= eps;
     while !converged && !out_of_time() {
-        let mut path: Vec<SparseBelief> = Vec::new();
+        // Each belief of the trial with its successors: the backward pass
+        // backs up the same beliefs, so they are expanded once.
+        let mut path: Vec<(SparseBelief, Vec<Vec<Branch>>)> = Vec::new();
         let mut b = b0.clone();
         let mut threshold = eps.max(opts.trial_gap_fraction * (ub.value(&b0) - lb.value(&b0)));
         loop {
@@ -260,7 +262,7 @@ pub fn solve(
             ub.add(&b, v_up);
             let gap = ub.value(&b) - lb.value(&b);
             if gap <= threshold || out_of_time() {
-                path.push(b);
+                path.push((b, branches));
                 break;
             }
             threshold /= g;
@@ -271,22 +273,23 @@ pub fn solve(
                     pick = Some((k, excess));
                 }
             }
-            path.push(b);
-            match pick {
-                Some((k, e)) if e > 0.0 => {
-                    b = branches[a_star][k].belief.clone();
-                }
-                _ => break,
+            let child = match pick {
+                Some((k, e)) if e > 0.0 => Some(branches[a_star][k].belief.clone()),
+                _ => None,
+            };
+            path.push((b, branches));
+            match child {
+                Some(c) => b = c,
+                None => break,
             }
         }
-        for b in path.iter().rev() {
-            let branches = successors(p, &mut upd, b);
-            let (alpha, a, _, next) = lb.backup(p, b, &branches);
+        for (b, branches) in path.iter().rev() {
+            let (alpha, a, _, next) = lb.backup(p, b, branches);
             lb.add_plan(alpha, a, &next);
-            let (qs, _) = ub.backup(p, b, &branches, opts.threads);
+            let (qs, _) = ub.backup(p, b, branches, opts.threads);
             ub.add(b, argmax(&qs).1);
         }
-        for b in path {
+        for (b, _) in path {
             if seen.insert(b.key()) {
                 samples.push(b);
             }
