@@ -23,8 +23,15 @@
 //!   box plus ⌊5 ln n⌋ on the whole square (in the dark the likelihood is
 //!   flat over [−2, 2]², so points there carry nothing; in the light they
 //!   set how finely the agent localises). Each size is solved for
-//!   `solve_s` from the previous size's solution carried over; the
-//!   anytime curve solves the `anytime_states` POMDP afresh per budget.
+//!   `solve_s` from the previous size's plans carried over
+//!   ([`warm::carry_plan`]: the policy graph evaluated exactly on the new
+//!   chain, at most [`CARRY_CAP`] nodes; `carried_b0` is its certified
+//!   value at b₀, a floor for `lower_b0`). The chain's step Δt_n shrinks
+//!   as states are added, so a plan that dead-reckons in steps falls short
+//!   of the goal on the finer chain and the carried value is often near
+//!   the stay-put plan's 0; what keeps the larger sizes from starting
+//!   blind is the upper bound's MDP start. The anytime curve solves the
+//!   `anytime_states` POMDP afresh per budget.
 //!
 //! The step is the thesis's Δt_n = min_{z,u} Δt(z,u) (no power-of-two
 //! rounding): with σ² ≪ r|u| every control moves about r per Δt(z,u), and
@@ -48,7 +55,8 @@ use anyhow::{Context, Result};
 use beliefbus_pomdp::chain_pomdp::{
     self, warm, ChainPomdp, ChainPomdpSpec, ObservationModel, Terminal,
 };
-use beliefbus_pomdp::{simulate, solve, AlphaPolicy, SimulateOptions, SolveOptions};
+use beliefbus_pomdp::solver::graph::Controller;
+use beliefbus_pomdp::{simulate, solve, AlphaPolicy, SimulateOptions, Solution, SolveOptions};
 use rand::{RngExt, SeedableRng};
 use std::path::Path;
 use std::time::Duration;
@@ -182,12 +190,12 @@ fn spec_for(
     }
 }
 
-fn solve_opts(secs: f64, initial: Vec<(Vec<f64>, usize)>) -> SolveOptions {
+fn solve_opts(secs: f64, initial: Option<Controller>) -> SolveOptions {
     SolveOptions {
         precision: 1e-2,
         time_limit: Some(Duration::from_secs_f64(secs)),
         threads: 1,
-        initial_lower: initial,
+        initial_controller: initial,
         belief_flush: 1e-7,
         prune_lower: false,
         ..Default::default()
@@ -302,15 +310,30 @@ fn expected_reward(
     Ok((r.mean, r.std_err))
 }
 
-/// The 2-D problem grown over `sizes`; `each(n, pomdp, policy, lower,
-/// upper, solve seconds)` per size.
+/// At most this many plan nodes are carried to a refined problem (the
+/// solver evaluates every vector at every belief it touches).
+pub const CARRY_CAP: usize = 256;
+
+/// One size of the 2-D problem, solved.
+pub struct Sized<'a> {
+    pub cp: &'a ChainPomdp,
+    pub sol: &'a Solution,
+    /// The carried plans' certified value at b₀ (warm starts only).
+    pub carried_b0: Option<f64>,
+    /// Seconds spent carrying and evaluating the previous plans.
+    pub carry_s: f64,
+}
+
+/// The 2-D problem grown over `sizes`, each size solved for `solve_s`
+/// (the last entry repeats) from the previous size's plans unless
+/// `fresh`; `each` per size.
 pub fn two_d(
     sizes: &[usize],
     solve_s: &[f64],
     s: &Setting,
     seed: u64,
     fresh: bool,
-    mut each: impl FnMut(&ChainPomdp, &AlphaPolicy, f64, f64, f64) -> Result<()>,
+    mut each: impl FnMut(&Sized<'_>) -> Result<()>,
 ) -> Result<()> {
     let m = LightDark::new(2, s.sigma);
     let light = Boxes(vec![(vec![1.4, 1.4], 1.2), (vec![-1.4, -1.4], 1.2)]);
@@ -331,7 +354,7 @@ pub fn two_d(
         vec![-1.0, -1.0],
     ];
     let mut obs_pts: Vec<Vec<f64>> = Vec::new();
-    let mut prev: Option<(ChainPomdp, AlphaPolicy)> = None;
+    let mut prev: Option<(ChainPomdp, Solution)> = None;
     for (k, &n) in sizes.iter().enumerate() {
         if n > chain.len() {
             chain.grow(
@@ -374,15 +397,38 @@ pub fn two_d(
         let spec = spec_for(&chain, &controls, &obs_pts, start, &goal, s);
         let cp = chain_pomdp::build(&chain, &m, &obs, &quadratic_control, &spec)?;
         let secs = solve_s[k.min(solve_s.len() - 1)];
+        let t0 = std::time::Instant::now();
         let initial = match (&prev, fresh) {
-            (Some((pcp, ppol)), false) => {
-                warm::carry(pcp, ppol, &cp, Duration::from_secs_f64(0.02 * secs), 1e-3)
-            }
-            _ => Vec::new(),
+            (Some((pcp, psol)), false) => Some(warm::carry_plan(
+                &warm::Solved {
+                    cp: pcp,
+                    policy: &psol.policy,
+                    plan: &psol.plan,
+                    plan_nodes: &psol.plan_nodes,
+                },
+                &cp,
+                CARRY_CAP,
+                Duration::from_secs_f64(0.1 * secs),
+                1e-3,
+            )),
+            _ => None,
         };
+        let carry_s = t0.elapsed().as_secs_f64();
+        let b0 = &cp.pomdp.start;
+        let carried_b0 = initial.as_ref().map(|c| {
+            c.values
+                .iter()
+                .map(|v| v.iter().zip(b0).map(|(a, b)| a * b).sum::<f64>())
+                .fold(f64::NEG_INFINITY, f64::max)
+        });
         let sol = solve(&cp.pomdp, &solve_opts(secs, initial), |_| {})?;
-        each(&cp, &sol.policy, sol.lower, sol.upper, sol.time_s)?;
-        prev = Some((cp, sol.policy));
+        each(&Sized {
+            cp: &cp,
+            sol: &sol,
+            carried_b0,
+            carry_s,
+        })?;
+        prev = Some((cp, sol));
     }
     Ok(())
 }
@@ -460,7 +506,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     );
 
     let cp1 = one_d(&s)?;
-    let sol1 = solve(&cp1.pomdp, &solve_opts(solve_1d_s, Vec::new()), |_| {})?;
+    let sol1 = solve(&cp1.pomdp, &solve_opts(solve_1d_s, None), |_| {})?;
     let (m1, se1) = expected_reward(&cp1, &sol1.policy, runs, args.seed)?;
     let traj = trajectory(&cp1, &sol1.policy, args.seed, 200);
     let light_first = plot::visits_light_before_goal(&cp1, &traj);
@@ -483,55 +529,44 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     }
     prog.tick();
 
-    two_d(
-        &sizes,
-        &[solve_s],
-        &s,
-        args.seed,
-        false,
-        |cp, pol, lo, up, t| {
-            let (m, se) = expected_reward(cp, pol, runs, args.seed)?;
+    two_d(&sizes, &[solve_s], &s, args.seed, false, |z| {
+        let cp = z.cp;
+        let (m, se) = expected_reward(cp, &z.sol.policy, runs, args.seed)?;
+        let mut row = Row::new("chain-pomdp")
+            .text("problem", "2-D")
+            .int("states", cp.n_chain() as u64)
+            .num("solve_s", z.sol.time_s)
+            .num("reward", m)
+            .num("reward_se", se)
+            .num("reward_ci95", 1.96 * se)
+            .num("lower_b0", z.sol.lower)
+            .num("upper_b0", z.sol.upper)
+            .num("period_s", cp.period)
+            .int("controls", cp.controls.len() as u64)
+            .int("observations", cp.observations.len() as u64);
+        if let Some(c) = z.carried_b0 {
+            row = row.num("carried_b0", c).num("carry_s", z.carry_s);
+        }
+        rep.results.push(row);
+        prog.tick();
+        Ok(())
+    })?;
+    for &budget in &anytime {
+        two_d(&[anytime_states], &[budget], &s, args.seed, true, |z| {
+            let (m, se) = expected_reward(z.cp, &z.sol.policy, runs, args.seed)?;
             rep.results.push(
-                Row::new("chain-pomdp")
+                Row::new("anytime")
                     .text("problem", "2-D")
-                    .int("states", cp.n_chain() as u64)
-                    .num("solve_s", t)
+                    .int("states", z.cp.n_chain() as u64)
+                    .num("solve_s", z.sol.time_s)
                     .num("reward", m)
                     .num("reward_se", se)
                     .num("reward_ci95", 1.96 * se)
-                    .num("lower_b0", lo)
-                    .num("upper_b0", up)
-                    .num("period_s", cp.period)
-                    .int("controls", cp.controls.len() as u64)
-                    .int("observations", cp.observations.len() as u64),
+                    .num("lower_b0", z.sol.lower)
+                    .num("upper_b0", z.sol.upper),
             );
-            prog.tick();
             Ok(())
-        },
-    )?;
-    for &budget in &anytime {
-        two_d(
-            &[anytime_states],
-            &[budget],
-            &s,
-            args.seed,
-            true,
-            |cp, pol, lo, up, t| {
-                let (m, se) = expected_reward(cp, pol, runs, args.seed)?;
-                rep.results.push(
-                    Row::new("anytime")
-                        .text("problem", "2-D")
-                        .int("states", cp.n_chain() as u64)
-                        .num("solve_s", t)
-                        .num("reward", m)
-                        .num("reward_se", se)
-                        .num("reward_ci95", 1.96 * se)
-                        .num("lower_b0", lo)
-                        .num("upper_b0", up),
-                );
-                Ok(())
-            },
-        )?;
+        })?;
         prog.tick();
     }
     for (n, r, pm) in PAPER_STATES {

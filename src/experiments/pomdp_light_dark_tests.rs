@@ -11,7 +11,7 @@ fn setting() -> Setting {
 #[test]
 fn one_d_policy_goes_to_the_light_before_the_goal() {
     let cp = one_d(&setting()).expect("1-D POMDP");
-    let sol = solve(&cp.pomdp, &solve_opts(5.0, Vec::new()), |_| {}).expect("solve");
+    let sol = solve(&cp.pomdp, &solve_opts(5.0, None), |_| {}).expect("solve");
     let mut light_first = 0;
     let seeds = 20;
     for seed in 0..seeds {

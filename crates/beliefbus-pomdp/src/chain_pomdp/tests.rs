@@ -12,7 +12,7 @@ use rand::{RngExt, SeedableRng};
 use std::time::Duration;
 
 /// dx = (−x + u) dt + 0.1 dw, y = x + σ v on [−1, 1].
-fn lqg(obs_std: f64) -> LinearSde {
+pub(super) fn lqg(obs_std: f64) -> LinearSde {
     LinearSde::new(
         "lqg1",
         DMatrix::from_element(1, 1, -1.0),
@@ -24,13 +24,18 @@ fn lqg(obs_std: f64) -> LinearSde {
     )
 }
 
-fn chain(model: &LinearSde, n: usize, seed: u64) -> Chain {
+pub(super) fn chain(model: &LinearSde, n: usize, seed: u64) -> Chain {
     let mut rng = SimRng::seed_from_u64(seed);
     let pts: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
     Chain::batch(model, ChainConfig::gaussian(1), &pts).expect("chain")
 }
 
-fn spec(n: usize, controls: &[f64], delta_max: f64, decision_min: f64) -> ChainPomdpSpec {
+pub(super) fn spec(
+    n: usize,
+    controls: &[f64],
+    delta_max: f64,
+    decision_min: f64,
+) -> ChainPomdpSpec {
     ChainPomdpSpec {
         controls: controls.iter().map(|&u| vec![u]).collect(),
         observations: (0..9).map(|j| vec![-1.0 + 0.25 * j as f64]).collect(),
@@ -45,7 +50,7 @@ fn spec(n: usize, controls: &[f64], delta_max: f64, decision_min: f64) -> ChainP
     }
 }
 
-fn quadratic(z: &[f64], u: &[f64]) -> f64 {
+pub(super) fn quadratic(z: &[f64], u: &[f64]) -> f64 {
     z[0] * z[0] + u[0] * u[0]
 }
 

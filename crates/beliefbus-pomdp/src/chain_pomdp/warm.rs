@@ -28,6 +28,8 @@
 
 use super::ChainPomdp;
 use crate::policy::AlphaPolicy;
+use crate::solver::graph::{self, Controller, PlanGraph};
+use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 /// For each state of `next` (the absorbing one maps to the old absorbing
@@ -193,3 +195,152 @@ fn keep_useful(
     let mut out: Vec<Option<(Vec<f64>, usize)>> = v.into_iter().zip(acts).map(Some).collect();
     keep.into_iter().filter_map(|k| out[k].take()).collect()
 }
+
+/// A solved chain POMDP: what [`carry_plan`] carries.
+pub struct Solved<'a> {
+    pub cp: &'a ChainPomdp,
+    pub policy: &'a AlphaPolicy,
+    /// The solver's plan graph and the node of each policy vector
+    /// ([`crate::Solution::plan`], [`crate::Solution::plan_nodes`]).
+    pub plan: &'a PlanGraph,
+    pub plan_nodes: &'a [u32],
+}
+
+/// The previous solution's plans as a controller of `next` with certified
+/// values ([`crate::solver::graph`]): the plan graph is kept node for
+/// node (a node acts as before and moves to the same successor), each new
+/// observation read as the nearest old observation point. The nodes are
+/// taken breadth first from the policy's vectors in order of their value
+/// at the previous b₀, at most `cap`; a successor left out goes to one
+/// blind node repeating the action with the best worst-case reward. The
+/// controller is evaluated on `next` for at most `budget` (or until the
+/// change is below `tol`) from the previous vectors moved by nearest
+/// state, then certified, so every value is a lower bound of `next`'s V*
+/// and the best at b₀ is what the carried plans achieve there.
+///
+/// Unlike [`carry`], whose nodes choose their successor from the
+/// observation alone, these plans keep their memory (go to the light,
+/// then dead-reckon to the goal), so the refined problem starts from the
+/// previous policy's behaviour rather than from a reactive one.
+pub fn carry_plan(
+    prev: &Solved<'_>,
+    next: &ChainPomdp,
+    cap: usize,
+    budget: Duration,
+    tol: f64,
+) -> Controller {
+    let t0 = Instant::now();
+    let p = &next.pomdp;
+    let plan = prev.plan;
+    let map = nearest_map(prev.cp, next);
+    if map.len() != p.n_states() || plan.is_empty() || cap == 0 {
+        return Controller::default();
+    }
+    let obs_map = nearest_obs(prev.cp, next);
+    let mut used: Vec<usize> = obs_map.clone();
+    used.sort_unstable();
+    used.dedup();
+    // Roots: the policy's vectors by value at the previous b₀.
+    let start = &prev.cp.pomdp.start;
+    let mut roots: Vec<(f64, usize)> = prev
+        .policy
+        .vectors
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| prev.policy.actions[*k] < p.n_actions())
+        .map(|(k, v)| (v.iter().zip(start).map(|(a, b)| a * b).sum(), k))
+        .collect();
+    roots.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut local: HashMap<u32, u32> = HashMap::new();
+    let mut order: Vec<u32> = Vec::new();
+    let mut queue = std::collections::VecDeque::new();
+    'roots: for &(_, k) in &roots {
+        let root = plan.resolve(prev.plan_nodes[k]);
+        if local.contains_key(&root) {
+            continue;
+        }
+        if order.len() >= cap {
+            break;
+        }
+        local.insert(root, order.len() as u32);
+        order.push(root);
+        queue.push_back(root);
+        while let Some(n) = queue.pop_front() {
+            for &o in &used {
+                let m = plan.next(n, o);
+                if plan.action(m) >= p.n_actions() || local.contains_key(&m) {
+                    continue;
+                }
+                if order.len() >= cap {
+                    break 'roots;
+                }
+                local.insert(m, order.len() as u32);
+                order.push(m);
+                queue.push_back(m);
+            }
+        }
+    }
+    // The leaf: a blind node with the best worst-case reward.
+    let leaf = order.len() as u32;
+    let leaf_action = (0..p.n_actions())
+        .map(|a| (a, p.reward[a].iter().copied().fold(f64::INFINITY, f64::min)))
+        .fold((0, f64::NEG_INFINITY), |b, x| if x.1 > b.1 { x } else { b })
+        .0;
+    let no = p.n_obs();
+    let mut action: Vec<usize> = order.iter().map(|&n| plan.action(n)).collect();
+    action.push(leaf_action);
+    let mut succ = Vec::with_capacity(action.len() * no);
+    for &n in &order {
+        for &o in &obs_map {
+            let m = plan.next(n, o);
+            succ.push(local.get(&m).copied().unwrap_or(leaf));
+        }
+    }
+    succ.extend(std::iter::repeat_n(leaf, no));
+    // Start from the previous vectors where a node has one.
+    let vector_of: HashMap<u32, usize> = prev
+        .plan_nodes
+        .iter()
+        .enumerate()
+        .map(|(k, &n)| (n, k))
+        .collect();
+    let ns = p.n_states();
+    let mut init: Vec<Vec<f64>> = order
+        .iter()
+        .map(|n| match vector_of.get(n) {
+            Some(&k) => map.iter().map(|&i| prev.policy.vectors[k][i]).collect(),
+            None => vec![0.0; ns],
+        })
+        .collect();
+    init.push(vec![0.0; ns]);
+    let values = graph::evaluate(p, &action, &succ, init, tol, Some(t0 + budget));
+    Controller {
+        action,
+        next: succ,
+        values,
+    }
+}
+
+/// For each observation point of `next`, the index of the nearest one of
+/// `prev` (the points are appended as the problem grows, so the old ones
+/// map to themselves).
+pub fn nearest_obs(prev: &ChainPomdp, next: &ChainPomdp) -> Vec<usize> {
+    next.observations
+        .iter()
+        .map(|y| {
+            prev.observations
+                .iter()
+                .enumerate()
+                .map(|(i, x)| (i, x.iter().zip(y).map(|(a, b)| (a - b) * (a - b)).sum()))
+                .fold(
+                    (0, f64::INFINITY),
+                    |b, x: (usize, f64)| if x.1 < b.1 { x } else { b },
+                )
+                .0
+        })
+        .collect()
+}
+
+#[cfg(test)]
+#[path = "warm_tests.rs"]
+mod tests;

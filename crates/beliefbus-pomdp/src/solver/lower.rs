@@ -15,12 +15,17 @@
 //!   [`LowerBound::prune`] keeps only vectors best at some sampled belief
 //!   (SARSOP's pruning by sampled beliefs).
 
+use super::graph::PlanGraph;
 use crate::belief::{Branch, SparseBelief};
 use crate::model::Pomdp;
 
 pub struct LowerBound {
     pub vectors: Vec<Vec<f64>>,
     pub actions: Vec<usize>,
+    /// The plan node of each vector in [`LowerBound::graph`].
+    pub nodes: Vec<u32>,
+    /// Every kept vector's plan ([`super::graph`]).
+    pub graph: PlanGraph,
 }
 
 impl LowerBound {
@@ -32,6 +37,8 @@ impl LowerBound {
         let mut lb = LowerBound {
             vectors: Vec::new(),
             actions: Vec::new(),
+            nodes: Vec::new(),
+            graph: PlanGraph::new(p.n_obs()),
         };
         for a in 0..p.n_actions() {
             let mut v = vec![lo / (1.0 - g); n];
@@ -53,7 +60,8 @@ impl LowerBound {
                     break;
                 }
             }
-            lb.add(v, a);
+            let node = lb.graph.push_loop(a);
+            lb.add(v, a, node);
         }
         lb
     }
@@ -75,13 +83,14 @@ impl LowerBound {
     }
 
     /// `max_a [R(b,a) + γ Σ_o P(o|b,a) V̲(b^{a,o})]` at `b` and the α that
-    /// attains it (with its action). `branches[a]` are b's successors.
+    /// attains it (with its action and the plan node it continues with on
+    /// each observation). `branches[a]` are b's successors.
     pub fn backup(
         &self,
         p: &Pomdp,
         b: &SparseBelief,
         branches: &[Vec<Branch>],
-    ) -> (Vec<f64>, usize, f64) {
+    ) -> (Vec<f64>, usize, f64, Vec<u32>) {
         let g = p.discount;
         let fallback = self.best(b).0;
         let mut best_a = (0, f64::NEG_INFINITY);
@@ -123,17 +132,34 @@ impl LowerBound {
                 p.reward[a][s] + g * ev
             })
             .collect();
-        (alpha, a, best_a.1)
+        let next = best_chosen.iter().map(|&k| self.nodes[k]).collect();
+        (alpha, a, best_a.1, next)
     }
 
-    /// Adds `alpha` unless an existing vector dominates it pointwise;
-    /// removes the vectors it dominates. Returns whether it was added.
-    pub fn add(&mut self, alpha: Vec<f64>, action: usize) -> bool {
-        if self
-            .vectors
+    /// The vector dominating `alpha` pointwise, if any.
+    fn dominating(&self, alpha: &[f64]) -> Option<usize> {
+        self.vectors
             .iter()
-            .any(|v| v.iter().zip(&alpha).all(|(x, y)| x >= y))
-        {
+            .position(|v| v.iter().zip(alpha).all(|(x, y)| x >= y))
+    }
+
+    /// Adds the backed-up `alpha` (plan: `action`, then `next[o]`) unless
+    /// an existing vector dominates it pointwise; see [`LowerBound::add`].
+    pub fn add_plan(&mut self, alpha: Vec<f64>, action: usize, next: &[u32]) -> bool {
+        if self.dominating(&alpha).is_some() {
+            return false;
+        }
+        let node = self.graph.push(action, next);
+        self.add(alpha, action, node)
+    }
+
+    /// Adds `alpha`, the value of plan node `node`, unless an existing
+    /// vector dominates it pointwise (the node is then redirected to that
+    /// vector's); removes the vectors it dominates (redirecting their
+    /// nodes to `node`). Returns whether it was added.
+    pub fn add(&mut self, alpha: Vec<f64>, action: usize, node: u32) -> bool {
+        if let Some(k) = self.dominating(&alpha) {
+            self.graph.replace(node, self.nodes[k]);
             return false;
         }
         let mut k = 0;
@@ -141,12 +167,15 @@ impl LowerBound {
             if alpha.iter().zip(&self.vectors[k]).all(|(x, y)| x >= y) {
                 self.vectors.swap_remove(k);
                 self.actions.swap_remove(k);
+                let old = self.nodes.swap_remove(k);
+                self.graph.replace(old, node);
             } else {
                 k += 1;
             }
         }
         self.vectors.push(alpha);
         self.actions.push(action);
+        self.nodes.push(node);
         true
     }
 
@@ -163,6 +192,11 @@ impl LowerBound {
         });
         let mut k = 0;
         self.actions.retain(|_| {
+            k += 1;
+            keep[k - 1]
+        });
+        let mut k = 0;
+        self.nodes.retain(|_| {
             k += 1;
             keep[k - 1]
         });

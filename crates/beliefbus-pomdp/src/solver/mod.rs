@@ -18,15 +18,20 @@
 //!   Hallway), where backups barely move b₀; short trials tighten b₀ faster.
 //!
 //! Lower bound: α-vectors from blind policies, pruned by pointwise dominance
-//! and by the sampled beliefs. Upper bound: FIB, then sawtooth points.
-//! Beliefs and model matrices are sparse throughout.
+//! and by the sampled beliefs; every vector's plan is recorded ([`graph`]),
+//! so a solution can be carried to another model as a controller and
+//! evaluated there exactly. Upper bound: FIB started from the fully
+//! observed MDP's Q-values, then sawtooth points. Beliefs and model
+//! matrices are sparse throughout.
 
+pub mod graph;
 pub mod lower;
 pub mod upper;
 
 use crate::belief::{Branch, SparseBelief, Updater};
 use crate::model::Pomdp;
 use crate::policy::AlphaPolicy;
+use graph::{Controller, PlanGraph};
 use lower::LowerBound;
 use std::collections::HashSet;
 use std::time::{Duration, Instant};
@@ -54,6 +59,12 @@ pub struct SolveOptions {
     /// must be the value of a plan of `p` (see
     /// [`crate::chain_pomdp::warm`]), or the lower bound is no bound.
     pub initial_lower: Vec<(Vec<f64>, usize)>,
+    /// A controller of `p` with certified values (e.g. a previous
+    /// solution's plans carried to a refined model,
+    /// [`crate::chain_pomdp::warm::carry_plan`]): its nodes join the plan
+    /// graph and its values the lower bound, so V̲(b₀) starts at least at
+    /// its best value at b₀ and the greedy policy can follow its plans.
+    pub initial_controller: Option<Controller>,
     /// Posterior masses below this are dropped from the sampled beliefs
     /// (0 = exact). The lower bound stays a bound (its α-vectors are plan
     /// values whatever belief selected them); the upper bound at a
@@ -77,6 +88,7 @@ impl Default for SolveOptions {
             trial_gap_fraction: 0.5,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             initial_lower: Vec::new(),
+            initial_controller: None,
             belief_flush: 0.0,
             prune_lower: true,
         }
@@ -102,6 +114,10 @@ pub struct Solution {
     /// V̄(b₀) ≥ V*(b₀).
     pub upper: f64,
     pub policy: AlphaPolicy,
+    /// The plans behind the policy's vectors: vector k is the value of
+    /// node `plan_nodes[k]` of `plan` ([`graph`]).
+    pub plan: PlanGraph,
+    pub plan_nodes: Vec<u32>,
     pub time_s: f64,
     pub trials: u64,
     /// Whether the precision was reached (else the time budget ended it).
@@ -120,6 +136,31 @@ pub enum SolveError {
     /// The trial gap fraction must be in [0, 1).
     #[error("trial gap fraction {0} must be in [0, 1)")]
     TrialGapFraction(f64),
+    /// The initial controller does not fit the problem.
+    #[error("initial controller: {0}")]
+    Controller(String),
+}
+
+/// Checks that `c` is a controller of `p`.
+fn check_controller(p: &Pomdp, c: &Controller) -> Result<(), SolveError> {
+    let n = c.len();
+    let bad = |m: String| Err(SolveError::Controller(m));
+    if c.values.len() != n || c.next.len() != n * p.n_obs() {
+        return bad(format!(
+            "{n} nodes need {n} value vectors and {} successors",
+            n * p.n_obs()
+        ));
+    }
+    if c.action.iter().any(|&a| a >= p.n_actions()) {
+        return bad(format!("an action is not below {}", p.n_actions()));
+    }
+    if c.next.iter().any(|&k| k as usize >= n) {
+        return bad("a successor is not a node".into());
+    }
+    if c.values.iter().any(|v| v.len() != p.n_states()) {
+        return bad(format!("a value vector is not of {} states", p.n_states()));
+    }
+    Ok(())
 }
 
 /// Solves `p` from its start belief (see the module doc), calling
@@ -138,6 +179,9 @@ pub fn solve(
     if !(0.0..1.0).contains(&opts.trial_gap_fraction) {
         return Err(SolveError::TrialGapFraction(opts.trial_gap_fraction));
     }
+    if let Some(c) = &opts.initial_controller {
+        check_controller(p, c)?;
+    }
     let t0 = Instant::now();
     let out_of_time = || opts.time_limit.is_some_and(|l| t0.elapsed() >= l);
     let g = p.discount;
@@ -151,13 +195,34 @@ pub fn solve(
     // A plan's value at a corner e_s is at most V*(e_s) ≤ the FIB corner
     // value: a supplied vector above it anywhere is no plan's value, and
     // trusting it would let the solver stop on a false bound.
+    // Supplied vectors without a plan are recorded as repeating their
+    // action: the graph stays a controller (its later evaluation on
+    // another model is exact whatever the node stands for).
     for (alpha, a) in &opts.initial_lower {
         if alpha.len() == p.n_states()
             && *a < p.n_actions()
             && alpha.iter().all(|x| x.is_finite())
             && ub.below_corners(alpha)
         {
-            lb.add(alpha.clone(), *a);
+            let node = lb.graph.push_loop(*a);
+            lb.add(alpha.clone(), *a, node);
+        }
+    }
+    if let Some(c) = &opts.initial_controller {
+        let base = lb.graph.len() as u32;
+        let no = p.n_obs();
+        let mut next = vec![0u32; no];
+        for k in 0..c.len() {
+            for (x, &j) in next.iter_mut().zip(&c.next[k * no..(k + 1) * no]) {
+                *x = base + j;
+            }
+            lb.graph.push(c.action[k], &next);
+        }
+        for k in 0..c.len() {
+            let v = &c.values[k];
+            if v.iter().all(|x| x.is_finite()) && ub.below_corners(v) {
+                lb.add(v.clone(), c.action[k], base + k as u32);
+            }
         }
     }
     let mut upd = Updater::new(p);
@@ -185,7 +250,9 @@ pub fn solve(
     report(&mut lb, &mut ub, 0, true);
     let mut converged = ub.value(&b0) - lb.value(&b0) <= eps;
     while !converged && !out_of_time() {
-        let mut path: Vec<SparseBelief> = Vec::new();
+        // Each belief of the trial with its successors: the backward pass
+        // backs up the same beliefs, so they are expanded once.
+        let mut path: Vec<(SparseBelief, Vec<Vec<Branch>>)> = Vec::new();
         let mut b = b0.clone();
         let mut threshold = eps.max(opts.trial_gap_fraction * (ub.value(&b0) - lb.value(&b0)));
         loop {
@@ -195,7 +262,7 @@ pub fn solve(
             ub.add(&b, v_up);
             let gap = ub.value(&b) - lb.value(&b);
             if gap <= threshold || out_of_time() {
-                path.push(b);
+                path.push((b, branches));
                 break;
             }
             threshold /= g;
@@ -206,22 +273,23 @@ pub fn solve(
                     pick = Some((k, excess));
                 }
             }
-            path.push(b);
-            match pick {
-                Some((k, e)) if e > 0.0 => {
-                    b = branches[a_star][k].belief.clone();
-                }
-                _ => break,
+            let child = match pick {
+                Some((k, e)) if e > 0.0 => Some(branches[a_star][k].belief.clone()),
+                _ => None,
+            };
+            path.push((b, branches));
+            match child {
+                Some(c) => b = c,
+                None => break,
             }
         }
-        for b in path.iter().rev() {
-            let branches = successors(p, &mut upd, b);
-            let (alpha, a, _) = lb.backup(p, b, &branches);
-            lb.add(alpha, a);
-            let (qs, _) = ub.backup(p, b, &branches, opts.threads);
+        for (b, branches) in path.iter().rev() {
+            let (alpha, a, _, next) = lb.backup(p, b, branches);
+            lb.add_plan(alpha, a, &next);
+            let (qs, _) = ub.backup(p, b, branches, opts.threads);
             ub.add(b, argmax(&qs).1);
         }
-        for b in path {
+        for (b, _) in path {
             if seen.insert(b.key()) {
                 samples.push(b);
             }
@@ -247,6 +315,8 @@ pub fn solve(
             vectors: lb.vectors,
             actions: lb.actions,
         },
+        plan: lb.graph,
+        plan_nodes: lb.nodes,
         time_s: t0.elapsed().as_secs_f64(),
         trials,
         converged,

@@ -45,21 +45,33 @@ pub fn fib(p: &Pomdp, tol: f64, max_iter: usize) -> Vec<Vec<f64>> {
 /// [`fib`] stopped at `deadline` too: the iteration starts above the fixed
 /// point and the FIB operator is monotone, so every iterate is an upper
 /// bound and stopping early only loosens it.
+///
+/// The start is the fully observed MDP's Q-values ([`mdp_q`]) rather than
+/// `max R/(1−γ)`: they satisfy `H_MDP Q ≤ Q`, and FIB's operator is below
+/// the MDP's (`Σ_o max_{a'} ≤ max_{a'} Σ_o`), so `H_FIB Q ≤ Q` too — a
+/// start from which the iterates decrease towards the FIB fixed point.
+/// The MDP sweep costs |O| times less than a FIB sweep, and on problems
+/// whose large reward comes once (a terminal action, light-dark's ±1000)
+/// it brings the start from `max R/(1−γ)` down to about `max R`, where
+/// FIB alone needs hundreds of sweeps. Sweeps update in place
+/// (Gauss–Seidel): an update of one entry keeps `H Q ≤ Q` for all
+/// entries, since H is monotone and the entry only decreases.
 pub fn fib_until(
     p: &Pomdp,
     tol: f64,
     max_iter: usize,
     deadline: Option<std::time::Instant>,
 ) -> Vec<Vec<f64>> {
-    let (_, hi) = p.reward_range();
     let g = p.discount;
     let (ns, na, no) = (p.n_states(), p.n_actions(), p.n_obs());
-    let mut q = vec![vec![hi / (1.0 - g); ns]; na];
-    let mut next = q.clone();
+    let mut q = mdp_q(p, tol, max_iter, deadline);
     let mut acc = vec![0.0; no * na];
     let mut seen = vec![false; no];
     let mut touched: Vec<u32> = Vec::new();
     for _ in 0..max_iter {
+        if deadline.is_some_and(|d| std::time::Instant::now() >= d) {
+            break;
+        }
         let mut change: f64 = 0.0;
         for a in 0..na {
             for s in 0..ns {
@@ -87,11 +99,56 @@ pub fn fib_until(
                     seen[o] = false;
                 }
                 touched.clear();
-                next[a][s] = p.reward[a][s] + g * future;
-                change = change.max((next[a][s] - q[a][s]).abs());
+                let v = p.reward[a][s] + g * future;
+                // Rounding aside the update never rises; keeping the
+                // minimum keeps the invariant exactly.
+                if v < q[a][s] {
+                    change = change.max(q[a][s] - v);
+                    q[a][s] = v;
+                }
             }
         }
-        std::mem::swap(&mut q, &mut next);
+        if g / (1.0 - g) * change < tol {
+            break;
+        }
+    }
+    q
+}
+
+/// The fully observed MDP's Q-values by value iteration from
+/// `max R/(1−γ)`, in place, until the change is below `tol(1−γ)/γ`,
+/// `max_iter` sweeps or `deadline`: every iterate is an upper bound of
+/// the MDP's Q and satisfies `H_MDP Q ≤ Q` (the start does, and in-place
+/// updates keep it).
+pub fn mdp_q(
+    p: &Pomdp,
+    tol: f64,
+    max_iter: usize,
+    deadline: Option<std::time::Instant>,
+) -> Vec<Vec<f64>> {
+    let (_, hi) = p.reward_range();
+    let g = p.discount;
+    let (ns, na) = (p.n_states(), p.n_actions());
+    let mut q = vec![vec![hi / (1.0 - g); ns]; na];
+    let mut v = vec![hi / (1.0 - g); ns];
+    for _ in 0..max_iter {
+        let mut change: f64 = 0.0;
+        for s in 0..ns {
+            for a in 0..na {
+                let (cols, vals) = p.trans[a].row(s);
+                let ev: f64 = cols
+                    .iter()
+                    .zip(vals)
+                    .map(|(&j, &t)| t * v[j as usize])
+                    .sum();
+                let x = p.reward[a][s] + g * ev;
+                if x < q[a][s] {
+                    change = change.max(q[a][s] - x);
+                    q[a][s] = x;
+                }
+            }
+            v[s] = (0..na).map(|a| q[a][s]).fold(f64::NEG_INFINITY, f64::max);
+        }
         if g / (1.0 - g) * change < tol || deadline.is_some_and(|d| std::time::Instant::now() >= d)
         {
             break;

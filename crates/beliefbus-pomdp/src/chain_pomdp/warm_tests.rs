@@ -1,0 +1,197 @@
+//! The carried plans against an exact evaluation, and the solver's
+//! anytime guarantees from a warm start.
+
+use super::super::tests::{chain, lqg, quadratic, spec};
+use super::*;
+use crate::chain_pomdp::{build, GaussianObservation};
+use crate::model::Pomdp;
+use crate::solver::{solve, SolveOptions};
+use nalgebra::{DMatrix, DVector};
+
+/// The controller's value by solving `(I − γ M) V = R` densely
+/// (independent of [`graph::evaluate`]'s iteration and certificate).
+fn exact_value(p: &Pomdp, c: &Controller) -> Vec<Vec<f64>> {
+    let (ns, no, k) = (p.n_states(), p.n_obs(), c.len());
+    let n = k * ns;
+    let mut m = DMatrix::<f64>::identity(n, n);
+    let mut r = DVector::<f64>::zeros(n);
+    for node in 0..k {
+        let a = c.action[node];
+        for s in 0..ns {
+            let row = node * ns + s;
+            r[row] = p.reward[a][s];
+            for s2 in 0..ns {
+                let t = p.trans[a].get(s, s2);
+                for o in 0..no {
+                    let q = p.obs[a].get(s2, o);
+                    let col = c.next[node * no + o] as usize * ns + s2;
+                    m[(row, col)] -= p.discount * t * q;
+                }
+            }
+        }
+    }
+    let v = m.lu().solve(&r).expect("I − γM is invertible for γ < 1");
+    (0..k)
+        .map(|node| v.as_slice()[node * ns..(node + 1) * ns].to_vec())
+        .collect()
+}
+
+fn best_at(values: &[Vec<f64>], b: &[f64]) -> f64 {
+    values
+        .iter()
+        .map(|v| v.iter().zip(b).map(|(x, y)| x * y).sum::<f64>())
+        .fold(f64::NEG_INFINITY, f64::max)
+}
+
+struct Pair {
+    p1: ChainPomdp,
+    s1: crate::Solution,
+    p2: ChainPomdp,
+}
+
+fn refined_pair() -> Pair {
+    let m = lqg(0.3);
+    let obs = GaussianObservation {
+        model: &m,
+        std: vec![0.3],
+    };
+    let us = [0.0, 0.5, -0.5];
+    let opts = SolveOptions {
+        precision: 1e-4,
+        time_limit: Some(Duration::from_millis(300)),
+        threads: 1,
+        prune_lower: false,
+        ..Default::default()
+    };
+    let c1 = chain(&m, 20, 4);
+    let p1 = build(&c1, &m, &obs, &quadratic, &spec(20, &us, 1.0, 0.2)).expect("p1");
+    let s1 = solve(&p1.pomdp, &opts, |_| {}).expect("solve 1");
+    let c2 = chain(&m, 40, 5);
+    let p2 = build(&c2, &m, &obs, &quadratic, &spec(40, &us, 1.0, 0.2)).expect("p2");
+    Pair { p1, s1, p2 }
+}
+
+fn carried(pair: &Pair, cap: usize) -> Controller {
+    carry_plan(
+        &Solved {
+            cp: &pair.p1,
+            policy: &pair.s1.policy,
+            plan: &pair.s1.plan,
+            plan_nodes: &pair.s1.plan_nodes,
+        },
+        &pair.p2,
+        cap,
+        Duration::from_secs(5),
+        1e-11,
+    )
+}
+
+#[test]
+fn carried_plans_are_worth_what_they_claim_and_no_more() {
+    let pair = refined_pair();
+    let c = carried(&pair, 12);
+    assert!(c.len() >= 2, "{} nodes carried", c.len());
+    let exact = exact_value(&pair.p2.pomdp, &c);
+    for (k, (v, x)) in c.values.iter().zip(&exact).enumerate() {
+        for (s, (a, b)) in v.iter().zip(x).enumerate() {
+            // A certified lower bound of the controller's value ...
+            assert!(a <= &(b + 1e-9), "node {k} state {s}: {a} above exact {b}");
+            // ... and, converged, equal to it.
+            assert!(a >= &(b - 1e-6), "node {k} state {s}: {a} far below {b}");
+        }
+    }
+}
+
+#[test]
+fn warm_lower_bound_at_b0_is_at_least_the_carried_plans_exact_value() {
+    let pair = refined_pair();
+    let c = carried(&pair, 12);
+    let b0 = pair.p2.pomdp.start.clone();
+    let exact_b0 = best_at(&exact_value(&pair.p2.pomdp, &c), &b0);
+    let opts = SolveOptions {
+        precision: 1e-4,
+        time_limit: Some(Duration::from_millis(200)),
+        threads: 1,
+        prune_lower: false,
+        initial_controller: Some(c),
+        ..Default::default()
+    };
+    let mut first = None;
+    let warm = solve(&pair.p2.pomdp, &opts, |pr| {
+        first.get_or_insert(pr.lower);
+    })
+    .expect("warm");
+    let first = first.expect("a first report");
+    assert!(
+        first >= exact_b0 - 1e-6,
+        "the warm start's first lower bound {first} is below the carried plans' value {exact_b0}"
+    );
+    assert!(warm.lower >= exact_b0 - 1e-6);
+    assert!(warm.lower <= warm.upper + 1e-9);
+}
+
+#[test]
+fn anytime_bounds_only_tighten_and_the_policy_earns_its_bound() {
+    let pair = refined_pair();
+    let c = carried(&pair, 64);
+    let opts = SolveOptions {
+        precision: 1e-5,
+        time_limit: Some(Duration::from_millis(400)),
+        report_interval: Duration::ZERO,
+        threads: 1,
+        prune_lower: false,
+        initial_controller: Some(c),
+        ..Default::default()
+    };
+    let mut reports = Vec::new();
+    let warm = solve(&pair.p2.pomdp, &opts, |pr| reports.push(pr.clone())).expect("warm");
+    assert!(reports.len() >= 3, "{} reports", reports.len());
+    for w in reports.windows(2) {
+        assert!(w[1].lower >= w[0].lower, "lower fell: {w:?}");
+        assert!(w[1].upper <= w[0].upper, "upper rose: {w:?}");
+        assert!(w[1].lower <= w[1].upper + 1e-9);
+    }
+    // The greedy policy of a closed plan set earns at least V̲(b₀): more
+    // solver time (a larger V̲) cannot make the policy worse than that.
+    let sim = crate::SimulateOptions {
+        runs: 2000,
+        seed: 17,
+        precision: 1e-5,
+        threads: 1,
+    };
+    let r = crate::simulate(&pair.p2.pomdp, &warm.policy, &sim).expect("simulate");
+    assert!(
+        r.mean >= warm.lower - 3.0 * r.std_err,
+        "policy earns {} ± {} below its bound {}",
+        r.mean,
+        r.std_err,
+        warm.lower
+    );
+}
+
+#[test]
+fn plans_carried_to_their_own_problem_keep_the_lower_bound() {
+    let pair = refined_pair();
+    let c = carry_plan(
+        &Solved {
+            cp: &pair.p1,
+            policy: &pair.s1.policy,
+            plan: &pair.s1.plan,
+            plan_nodes: &pair.s1.plan_nodes,
+        },
+        &pair.p1,
+        usize::MAX,
+        Duration::from_secs(5),
+        1e-11,
+    );
+    // Every vector is the value of its plan (dominated continuations only
+    // redirected to better ones), so the whole graph is worth at least V̲.
+    let b0 = &pair.p1.pomdp.start;
+    let v = best_at(&c.values, b0);
+    assert!(
+        v >= pair.s1.lower - 1e-6,
+        "plans worth {v} at b0, the solve claimed {}",
+        pair.s1.lower
+    );
+    assert!(v <= pair.s1.upper + 1e-9);
+}
