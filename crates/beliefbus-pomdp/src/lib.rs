@@ -13,10 +13,12 @@ pub mod model;
 pub mod parse;
 pub mod policy;
 pub mod simulate;
+pub mod simulate_plan;
 pub mod solver;
 
 pub use model::{ModelError, Pomdp, SparseRows};
 pub use parse::{parse_file, parse_str, ParseError};
 pub use policy::{AlphaPolicy, PolicyError};
 pub use simulate::{simulate, SimulateError, SimulateOptions, SimulationResult};
+pub use simulate_plan::{simulate_plan, PlanSimulation};
 pub use solver::{solve, Progress, Solution, SolveError, SolveOptions};

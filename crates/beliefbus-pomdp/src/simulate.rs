@@ -183,7 +183,7 @@ impl Runner {
 
 /// Draws an index from `(index, probability)` pairs summing to one (the
 /// last index absorbs rounding).
-fn sample(rng: &mut SimRng, items: impl Iterator<Item = (u32, f64)>) -> u32 {
+pub(crate) fn sample(rng: &mut SimRng, items: impl Iterator<Item = (u32, f64)>) -> u32 {
     let u: f64 = rng.random();
     let mut acc = 0.0;
     let mut last = 0;
