@@ -577,4 +577,48 @@ mod tests {
         assert!(ce < 1.5 * ee, "chain {ce} vs EKF {ee}");
         assert!(chain.get("gap_kalman").is_none());
     }
+
+    /// Re-installing the 6-D version at every step (100 Hz) compounds the
+    /// install's loss: the flights are lost within 3 s, and the report
+    /// names each lost run with the time its error passed the threshold,
+    /// which lies inside the flight.
+    #[test]
+    fn re_installing_every_step_loses_six_dimensional_flights_and_names_them() {
+        let args = ExperimentArgs {
+            runs: Some(2),
+            seed: 1,
+            progress: false,
+            params: vec![
+                ("model".into(), "6d".into()),
+                ("states".into(), "500".into()),
+                ("particles".into(), "100".into()),
+                ("horizon_s".into(), "3".into()),
+                ("recenter_hz".into(), "100".into()),
+            ],
+            doc: &[],
+        };
+        let rep = run(&args).unwrap();
+        let chain = rep
+            .results
+            .iter()
+            .find(|r| r.method == "chain-steady")
+            .unwrap();
+        let lost = chain.get("lost").unwrap();
+        assert!(lost >= 1.0, "{:?}", rep.notes);
+        let named: Vec<&String> = rep
+            .notes
+            .iter()
+            .filter(|n| n.contains("chain-steady-500 lost run"))
+            .collect();
+        assert_eq!(named.len() as f64, lost, "{:?}", rep.notes);
+        for n in named {
+            let t: f64 = n
+                .split("at t = ")
+                .nth(1)
+                .and_then(|s| s.split(' ').next())
+                .and_then(|s| s.parse().ok())
+                .unwrap_or_else(|| panic!("no time in {n}"));
+            assert!(t > 0.0 && t <= 3.0, "{n}");
+        }
+    }
 }
