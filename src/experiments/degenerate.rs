@@ -76,8 +76,8 @@ pub const PARAMS: &[ParamDoc] = &[
     p("horizon_s", "10", "length of each flight (s)"),
     p(
         "recenter_hz",
-        "20",
-        "steady/prior: rate at which the version is re-installed on the belief",
+        "0",
+        "steady/prior: rate at which the version is re-installed on the belief (0: 20 in 4d, 10 in 6d)",
     ),
     p("rebuild_hz", "5", "rebuild: rate of fresh versions"),
     p("knn_c", "1.5", "neighbour count constant c of k = c log n"),
@@ -139,6 +139,12 @@ struct Score {
     cpu_s: f64,
     build_s: f64,
     respreads: u64,
+    collapses: u64,
+    /// First time (s) the position error exceeded the lost threshold.
+    t_lost: Option<f64>,
+    /// Per axis, |truth − mean| / σ∞ when the error first exceeded the
+    /// lost threshold (6-D only).
+    z_lost: Option<[f64; 6]>,
     failed: bool,
 }
 
@@ -321,6 +327,7 @@ fn run_chain(
     s.build_s = build_ns as f64 * 1e-9;
     s.cpu_s = (thread_cpu_ns() - c0) as f64 * 1e-9 - s.build_s;
     s.respreads = lf.respreads();
+    s.collapses = lf.collapses();
     s.failed = failed;
     Ok(s)
 }
@@ -347,6 +354,7 @@ fn row(method: &str, states: usize, v: &[Score], lost_error: f64, pf_cpu: f64) -
         )
         .int("lost", lost as u64)
         .int("respreads", v.iter().map(|s| s.respreads).sum())
+        .int("collapses", v.iter().map(|s| s.collapses).sum())
         .num("time_s", cpu)
         .num("build_s", build)
         .num("cpu_vs_pf", total / pf_cpu.max(1e-12))
@@ -368,16 +376,21 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         &["steady", "rebuild", "prior", "all"],
     )?;
     let t_end = p.f64(&mut rep, "horizon_s", 10.0)?;
-    let recenter_hz = p.f64(&mut rep, "recenter_hz", 20.0)?;
+    let recenter_hz = p.f64(&mut rep, "recenter_hz", 0.0)?;
     let rebuild_hz = p.f64(&mut rep, "rebuild_hz", 5.0)?;
     let knn_c = p.f64(&mut rep, "knn_c", 1.5)?;
     let inflate = p.f64(&mut rep, "inflate", 2.0)?;
     let lambda = p.f64(&mut rep, "lambda", 0.0)?;
     let lost_error = p.f64(&mut rep, "lost_error", 0.3)?;
     p.finish()?;
-    if sizes.iter().any(|&n| n < 50) || !(recenter_hz > 0.0 && rebuild_hz > 0.0) {
-        anyhow::bail!("states must be ≥ 50 and recenter_hz, rebuild_hz > 0");
+    if sizes.iter().any(|&n| n < 50) || !(recenter_hz >= 0.0 && rebuild_hz > 0.0) {
+        anyhow::bail!("states must be ≥ 50, recenter_hz ≥ 0 and rebuild_hz > 0");
     }
+    let recenter_hz = match (recenter_hz > 0.0, model_name.as_str()) {
+        (true, _) => recenter_hz,
+        (false, "6d") => six::DEFAULT_RECENTER_HZ,
+        (false, _) => 20.0,
+    };
     if lambda < 0.0 {
         anyhow::bail!("lambda must be ≥ 0");
     }
@@ -563,5 +576,49 @@ mod tests {
         let (ce, ee) = (chain.get("rmse").unwrap(), ekf.get("rmse").unwrap());
         assert!(ce < 1.5 * ee, "chain {ce} vs EKF {ee}");
         assert!(chain.get("gap_kalman").is_none());
+    }
+
+    /// Re-installing the 6-D version at every step (100 Hz) compounds the
+    /// install's loss: the flights are lost within 3 s, and the report
+    /// names each lost run with the time its error passed the threshold,
+    /// which lies inside the flight.
+    #[test]
+    fn re_installing_every_step_loses_six_dimensional_flights_and_names_them() {
+        let args = ExperimentArgs {
+            runs: Some(2),
+            seed: 1,
+            progress: false,
+            params: vec![
+                ("model".into(), "6d".into()),
+                ("states".into(), "500".into()),
+                ("particles".into(), "100".into()),
+                ("horizon_s".into(), "3".into()),
+                ("recenter_hz".into(), "100".into()),
+            ],
+            doc: &[],
+        };
+        let rep = run(&args).unwrap();
+        let chain = rep
+            .results
+            .iter()
+            .find(|r| r.method == "chain-steady")
+            .unwrap();
+        let lost = chain.get("lost").unwrap();
+        assert!(lost >= 1.0, "{:?}", rep.notes);
+        let named: Vec<&String> = rep
+            .notes
+            .iter()
+            .filter(|n| n.contains("chain-steady-500 lost run"))
+            .collect();
+        assert_eq!(named.len() as f64, lost, "{:?}", rep.notes);
+        for n in named {
+            let t: f64 = n
+                .split("at t = ")
+                .nth(1)
+                .and_then(|s| s.split(' ').next())
+                .and_then(|s| s.parse().ok())
+                .unwrap_or_else(|| panic!("no time in {n}"));
+            assert!(t > 0.0 && t <= 3.0, "{n}");
+        }
     }
 }
