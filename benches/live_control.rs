@@ -51,7 +51,10 @@ fn main() {
         } else if a == "--seed" {
             seed = args.next().and_then(|s| s.parse().ok()).expect("--seed N");
         } else if a == "--controls" {
-            calls = args.next().and_then(|s| s.parse().ok()).expect("--controls N");
+            calls = args
+                .next()
+                .and_then(|s| s.parse().ok())
+                .expect("--controls N");
         } else {
             path = PathBuf::from(a);
         }
