@@ -65,7 +65,7 @@ fn the_light_dark_scenario_solves_its_policy_then_runs_it_live_with_swaps() {
             .unwrap_or_else(|| panic!("no {k} in {out}"))
     };
     let (table, full) = (figure("lookup_vectors"), figure("undominated_vectors"));
-    assert!(table >= 1.0 && table <= 128.0 && table < full, "{out}");
+    assert!((1.0..=128.0).contains(&table) && table < full, "{out}");
     assert!(figure("table_loss") >= 0.0, "{out}");
 
     // Another process noise is another chain: stale, refused.
