@@ -33,14 +33,13 @@
 //! the solver, and nothing is allocated or freed on the control thread.
 //! Each swap raises the policy version published with the control.
 
-use super::encoding::{read_chain, CONTROL, U_DECLARE, U_LOOKUP_NS, U_VELOCITY, U_VERSION};
-use super::policy::FlatPolicy;
+use super::encoding::{read_chain, write_action, CONTROL, U_LOOKUP_NS, U_VERSION};
+use super::flat::FlatPolicy;
 use super::prune::bounded_table;
 use super::swap::{Current, Mailbox};
 use super::LightDarkSystem;
 use beliefbus_core::belief::Gaussian;
 use beliefbus_core::control::{ControlError, ControlInfo, Controller};
-use beliefbus_pomdp::chain_pomdp::ChainPomdp;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
@@ -67,22 +66,6 @@ pub struct PomdpController {
     background: Option<Background>,
     /// The background solve ran (or is off).
     started: bool,
-}
-
-/// The control for action `a`: (velocity, 0), or (0, 1) for the terminal
-/// action.
-#[inline]
-pub fn write_action(cp: &ChainPomdp, a: usize, u: &mut [f64]) {
-    match cp.control(a) {
-        Some(c) => {
-            u[U_VELOCITY] = c[0];
-            u[U_DECLARE] = 0.0;
-        }
-        None => {
-            u[U_VELOCITY] = 0.0;
-            u[U_DECLARE] = 1.0;
-        }
-    }
 }
 
 /// The bounded table of `full` with the system's capacity.

@@ -23,6 +23,7 @@
 
 use beliefbus_core::belief::Gaussian;
 use beliefbus_core::MAX_STATE;
+use beliefbus_pomdp::chain_pomdp::ChainPomdp;
 
 pub const STATE: usize = 3;
 pub const OBS: usize = 3;
@@ -67,6 +68,22 @@ pub fn read_chain(g: &Gaussian) -> Option<&[f64]> {
         return None;
     }
     Some(&g.cov[COUNT + 1..COUNT + 1 + n as usize])
+}
+
+/// The control for action `a`: (velocity, 0), or (0, 1) for the terminal
+/// action.
+#[inline]
+pub fn write_action(cp: &ChainPomdp, a: usize, u: &mut [f64]) {
+    match cp.control(a) {
+        Some(c) => {
+            u[U_VELOCITY] = c[0];
+            u[U_DECLARE] = 0.0;
+        }
+        None => {
+            u[U_VELOCITY] = 0.0;
+            u[U_DECLARE] = 1.0;
+        }
+    }
 }
 
 #[cfg(test)]

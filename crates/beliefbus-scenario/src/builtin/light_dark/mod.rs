@@ -34,6 +34,7 @@
 pub mod control;
 pub mod encoding;
 pub mod filter;
+pub mod flat;
 pub mod metrics;
 pub mod model;
 pub mod plant;

@@ -26,11 +26,10 @@
 //! full set's maximisers at the newly visited beliefs, until a pass meets
 //! no maximiser not seen before (or after [`PASSES`]).
 
-use super::control::write_action;
-use super::encoding::{CONTROL, EVENT_NONE};
+use super::encoding::{write_action, CONTROL, EVENT_NONE};
 use super::filter::ChainBeliefFilter;
+use super::flat::FlatPolicy;
 use super::plant::LightDarkPlant;
-use super::policy::FlatPolicy;
 use super::LightDarkSystem;
 use crate::backends::FilterContext;
 use crate::Plant;

@@ -1,7 +1,7 @@
 use super::control::PomdpController;
 use super::encoding::{read_chain, EVENT_GOAL, EVENT_NONE, U_DECLARE, U_VERSION};
+use super::flat::FlatPolicy;
 use super::model::LightObs;
-use super::policy::FlatPolicy;
 use super::*;
 use crate::metrics::{ControlView, RunMetrics, TruthView};
 use crate::rng::SimRng;
