@@ -63,6 +63,7 @@ use std::time::Duration;
 
 #[path = "pomdp_light_dark_plot.rs"]
 mod plot;
+pub use plot::{trajectory, Step};
 
 /// Thesis Fig. 4-8 (states, reward, ±) and Fig. 4-7 (solver s, reward, ±)
 /// at 150 states.
@@ -225,70 +226,6 @@ pub fn one_d(s: &Setting) -> Result<ChainPomdp> {
         &quadratic_control,
         &spec,
     )?)
-}
-
-/// One step of a seeded discrete run: true state, belief, action taken.
-#[derive(Clone, Debug)]
-pub struct Step {
-    pub state: usize,
-    pub belief: Vec<f64>,
-    pub action: usize,
-}
-
-/// A seeded run of `policy` on the discrete POMDP until the terminal
-/// action (or `max_steps`).
-pub fn trajectory(cp: &ChainPomdp, policy: &AlphaPolicy, seed: u64, max_steps: usize) -> Vec<Step> {
-    let p = &cp.pomdp;
-    let mut rng: SimRng = rng::stream(seed, 0x7a);
-    let draw = |rng: &mut SimRng, items: &mut dyn Iterator<Item = (usize, f64)>| {
-        let u: f64 = rng.random();
-        let mut acc = 0.0;
-        let mut last = 0;
-        for (i, q) in items {
-            acc += q;
-            last = i;
-            if u < acc {
-                return i;
-            }
-        }
-        last
-    };
-    let mut s = draw(&mut rng, &mut p.start.iter().copied().enumerate());
-    let mut b = p.start.clone();
-    let mut pred = vec![0.0; b.len()];
-    let mut out = Vec::new();
-    for _ in 0..max_steps {
-        let a = policy.actions[policy.best_dense(&b).0];
-        out.push(Step {
-            state: s,
-            belief: b.clone(),
-            action: a,
-        });
-        if cp.control(a).is_none() {
-            break;
-        }
-        let (cols, vals) = p.trans[a].row(s);
-        s = draw(
-            &mut rng,
-            &mut cols.iter().map(|&c| c as usize).zip(vals.iter().copied()),
-        );
-        let (os, qs) = p.obs[a].row(s);
-        let o = draw(
-            &mut rng,
-            &mut os.iter().map(|&c| c as usize).zip(qs.iter().copied()),
-        );
-        cp.predict(&b, a, &mut pred);
-        let mut total = 0.0;
-        for (z, v) in pred.iter_mut().enumerate() {
-            *v *= p.obs[a].get(z, o);
-            total += *v;
-        }
-        if total > 0.0 {
-            pred.iter_mut().for_each(|v| *v /= total);
-            std::mem::swap(&mut b, &mut pred);
-        }
-    }
-    out
 }
 
 fn expected_reward(
