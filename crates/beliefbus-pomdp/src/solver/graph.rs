@@ -218,3 +218,32 @@ pub fn evaluate(
     v.iter_mut().flatten().for_each(|x| *x -= shift);
     v
 }
+
+/// The nodes reachable from `start` (after redirects) as a compact
+/// controller: `(order, action, next)` where `order[i]` is the graph node
+/// of controller node i (`order[0] = start`) and `next` indexes the
+/// controller.
+pub fn reachable(plan: &PlanGraph, start: u32) -> (Vec<u32>, Vec<usize>, Vec<u32>) {
+    let start = plan.resolve(start);
+    let mut local = std::collections::HashMap::from([(start, 0u32)]);
+    let mut order = vec![start];
+    let mut k = 0;
+    while k < order.len() {
+        let n = order[k];
+        for o in 0..plan.n_obs() {
+            let m = plan.next(n, o);
+            if !local.contains_key(&m) {
+                local.insert(m, order.len() as u32);
+                order.push(m);
+            }
+        }
+        k += 1;
+    }
+    let action = order.iter().map(|&n| plan.action(n)).collect();
+    let next = order
+        .iter()
+        .flat_map(|&n| (0..plan.n_obs()).map(move |o| plan.next(n, o)))
+        .map(|m| local[&m])
+        .collect();
+    (order, action, next)
+}

@@ -20,13 +20,19 @@
 //! Lower bound: α-vectors from blind policies, pruned by pointwise dominance
 //! and by the sampled beliefs; every vector's plan is recorded ([`graph`]),
 //! so a solution can be carried to another model as a controller and
-//! evaluated there exactly. Upper bound: FIB started from the fully
+//! evaluated there exactly; at the end V̲(b₀) is raised to the exact value
+//! of the plan behind it ([`add_plan_value`]). Upper bound: FIB started from the fully
 //! observed MDP's Q-values, then sawtooth points. Beliefs and model
 //! matrices are sparse throughout.
 
 pub mod graph;
 pub mod lower;
 pub mod upper;
+
+#[cfg(test)]
+pub(crate) mod dense_eval;
+#[cfg(test)]
+mod plan_value_tests;
 
 use crate::belief::{Branch, SparseBelief, Updater};
 use crate::model::Pomdp;
@@ -183,7 +189,10 @@ pub fn solve(
         check_controller(p, c)?;
     }
     let t0 = Instant::now();
-    let out_of_time = || opts.time_limit.is_some_and(|l| t0.elapsed() >= l);
+    // The last tenth of the budget evaluates the plan behind V̲(b₀)
+    // ([`add_plan_value`]).
+    let search_limit = opts.time_limit.map(|l| l.mul_f64(0.9));
+    let out_of_time = || search_limit.is_some_and(|l| t0.elapsed() >= l);
     let g = p.discount;
     let eps = opts.precision;
     let tol = eps * (1.0 - g) * 1e-2;
@@ -305,6 +314,12 @@ pub fn solve(
     if opts.prune_lower {
         lb.prune(samples.iter().chain(std::iter::once(&b0)));
     }
+    let eval_deadline = opts
+        .time_limit
+        .map_or(Instant::now() + Duration::from_secs(10), |l| {
+            (t0 + l).max(Instant::now() + Duration::from_millis(1))
+        });
+    add_plan_value(p, &mut lb, &b0, tol, eval_deadline);
     report(&mut lb, &mut ub, trials, true);
     Ok(Solution {
         lower: lb.value(&b0),
@@ -321,6 +336,40 @@ pub fn solve(
         trials,
         converged,
     })
+}
+
+/// Adds the exact value of the plan behind V̲(b₀) as an α-vector.
+///
+/// The vector best at b₀ is a lower estimate of its plan's value: backups
+/// continue with the vectors of their time, and a successor later
+/// redirected to a dominating vector is worth more. The plan reachable
+/// from its node is a finite-state controller; [`graph::evaluate`] gives its
+/// value with a certificate (each returned vector is below the plan's
+/// value from every state), so the result is still the value of an
+/// executable policy — a valid, tighter V̲(b₀) that the plan's simulation
+/// (`crate::simulate_plan`) estimates without bias. Evaluation stops at
+/// `deadline`; the certificate shift then keeps it a bound.
+fn add_plan_value(p: &Pomdp, lb: &mut LowerBound, b0: &SparseBelief, tol: f64, deadline: Instant) {
+    let (k, _) = lb.best(b0);
+    let start = lb.graph.resolve(lb.nodes[k]);
+    let (order, action, next) = graph::reachable(&lb.graph, start);
+    let vector_of: std::collections::HashMap<u32, usize> =
+        lb.nodes.iter().enumerate().map(|(k, &n)| (n, k)).collect();
+    let (lo, _) = p.reward_range();
+    let floor = vec![lo / (1.0 - p.discount); p.n_states()];
+    let init = order
+        .iter()
+        .map(|n| {
+            vector_of
+                .get(n)
+                .map_or(floor.clone(), |&k| lb.vectors[k].clone())
+        })
+        .collect();
+    let mut values = graph::evaluate(p, &action, &next, init, tol, Some(deadline));
+    let alpha = values.swap_remove(0);
+    if alpha.iter().all(|x| x.is_finite()) {
+        lb.add(alpha, action[0], start);
+    }
 }
 
 fn successors(p: &Pomdp, upd: &mut Updater, b: &SparseBelief) -> Vec<Vec<Branch>> {
