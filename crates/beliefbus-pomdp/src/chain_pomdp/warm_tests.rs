@@ -4,7 +4,6 @@
 use super::super::tests::{chain, lqg, quadratic, spec};
 use super::*;
 use crate::chain_pomdp::{build, GaussianObservation};
-use crate::model::Pomdp;
 use crate::solver::dense_eval::exact_value;
 use crate::solver::{solve, SolveOptions};
 

@@ -232,8 +232,8 @@ pub fn reachable(plan: &PlanGraph, start: u32) -> (Vec<u32>, Vec<usize>, Vec<u32
         let n = order[k];
         for o in 0..plan.n_obs() {
             let m = plan.next(n, o);
-            if !local.contains_key(&m) {
-                local.insert(m, order.len() as u32);
+            if let std::collections::hash_map::Entry::Vacant(e) = local.entry(m) {
+                e.insert(order.len() as u32);
                 order.push(m);
             }
         }
