@@ -349,6 +349,18 @@ pub struct ControlConfig {
     /// beliefs only (0: compute on every latest belief).
     #[serde(default)]
     pub max_belief_age_us: f64,
+    /// Beliefs the controller may hold queued (1–256). 1: latest value —
+    /// beliefs that arrive together (a sensor burst after a host stall)
+    /// are superseded by the newest and counted as dropped. Above 1: a
+    /// control for every belief, in arrival order, skipping only those
+    /// older than `max_belief_age_us` (set it, or a slow controller falls
+    /// behind by up to this many beliefs).
+    #[serde(default = "default_belief_queue")]
+    pub belief_queue: usize,
+}
+
+fn default_belief_queue() -> usize {
+    1
 }
 
 /// `[refine]`: the anytime chain refinement.

@@ -191,6 +191,8 @@ fn values_that_size_memory_work_or_time_are_bounded() {
             "stages.filter.restart.reset_after_s",
         ),
         ("refine.publish_period_ms=1e300", "refine.publish_period_ms"),
+        ("control.belief_queue=0", "control.belief_queue"),
+        ("control.belief_queue=257", "control.belief_queue"),
     ] {
         let e = err(BASE, &[set]);
         assert_eq!(e.key, key, "{set}: {e}");

@@ -464,6 +464,13 @@ impl PipelineConfig {
                 "must be >= 0",
             ));
         }
+        let max_queue = <crate::ipc::Belief as crate::ipc::Message>::QOS.max_buffer;
+        if !(1..=max_queue).contains(&c.belief_queue) {
+            return Err(ConfigError::new(
+                "control.belief_queue",
+                format!("must be between 1 and {max_queue}"),
+            ));
+        }
         match &c.backend {
             ControlBackend::None => return Ok(()),
             ControlBackend::Scenario(name) => return self.validate_scenario_controller(name),

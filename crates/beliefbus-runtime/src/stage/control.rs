@@ -1,5 +1,6 @@
 //! Control: on each new belief (latest value — a belief that arrives while
-//! the previous one is being processed supersedes any older unread one),
+//! the previous one is being processed supersedes any older unread one;
+//! with `control.belief_queue` > 1 every belief, in arrival order),
 //! advance the waypoint route by the believed position, compute the control
 //! with the configured backend, publish it with the trace extended by the
 //! control's in/out stamps, and only then let the backend prepare its next
@@ -83,7 +84,7 @@ impl ControlPorts {
     /// Open them on `bus`.
     pub fn open(bus: &Bus, id: StageIdentity, cfg: &PipelineConfig) -> Result<Self, StageError> {
         Ok(Self {
-            belief: bus.subscriber()?,
+            belief: bus.subscriber_with(cfg.control.belief_queue, true)?,
             control: bus.publisher()?,
             stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
         })
@@ -247,6 +248,7 @@ pub fn run_with(
     let mut out_seq = resume.map(|c| c.seq + 1).unwrap_or(0);
     let mut err = None;
     let max_age_ns = (cfg.control.max_belief_age_us * 1e3) as u64;
+    let in_order = cfg.control.belief_queue > 1;
     // Closed-loop cost: the running cost at the belief mean with the control
     // held until the next belief, q(x̂_k) + w‖u_k‖² over [t_k, t_{k+1}).
     let mut eval_cost = cfg
@@ -267,23 +269,31 @@ pub fn run_with(
     let stats = &mut ports.stats;
     run_loop(&[belief], rt.wake_mode(), tick, stop, |w| {
         guarded(&mut err, || {
+            // Latest value: one belief per wake-up, the newest; a queue:
+            // every waiting belief in arrival order.
             if w == Wake::Data {
-                let (latest, skipped) = belief.latest()?;
-                if let Some(b) = latest {
+                loop {
+                    let b = if in_order {
+                        belief.receive()?
+                    } else {
+                        let (latest, skipped) = belief.latest()?;
+                        m.count_drop(DropReason::Superseded, skipped);
+                        latest
+                    };
+                    let Some(b) = b else { break };
                     let t_in = clock.now_ns();
                     m.budget.start();
-                    m.count_drop(DropReason::Superseded, skipped);
                     m.count_drop(DropReason::Lost, seq.observe(b.header.seq));
                     if max_age_ns > 0 && t_in.saturating_sub(b.header.t_pub_ns) > max_age_ns {
                         // Stale: wait for a fresh one.
                         m.count_drop(DropReason::Stale, 1);
-                        return Ok(());
+                        continue;
                     }
                     let Some(backend) = backend.as_mut() else {
                         m.processed += 1;
                         m.budget
                             .record_released(b.header.t_pub_ns, t_in, clock.now_ns());
-                        return Ok(());
+                        continue;
                     };
                     let g = b.gaussian();
                     let epoch_ns = *epoch.get_or_insert(b.header.t_valid_ns);
@@ -347,6 +357,9 @@ pub fn run_with(
                     m.record_hops(&out.trace);
                     // Off the critical path: the next call's noise.
                     backend.prepare();
+                    if !in_order {
+                        break;
+                    }
                 }
             }
             stats.tick(&m, clock.now_ns())?;

@@ -277,6 +277,70 @@ fn all_stage_loops_close_the_loop_in_one_process() {
     );
 }
 
+/// Publishes a burst of `n` fresh beliefs at once to a control stage with
+/// `belief_queue`; returns the burst's and its controls' valid times and
+/// the final stats (which count one belief before the burst).
+fn control_after_burst(belief_queue: usize, n: u64) -> (Vec<u64>, Vec<u64>, StageStats) {
+    let queue = format!("control.belief_queue={belief_queue}");
+    let cfg = test_config(&[
+        "control.mppi.samples=256",
+        "control.max_belief_age_us=1000000",
+        &queue,
+    ]);
+    let _c = Cleanup(cfg.run.prefix.clone());
+    let stop = Arc::new(AtomicBool::new(false));
+    let bus = Bus::open(&cfg.bus(), "test").unwrap();
+    let stats = bus.subscriber::<StageStats>().unwrap();
+    let controls = bus.subscriber_with::<Control>(64, false).unwrap();
+    let mut beliefs = bus.publisher::<Belief>().unwrap();
+    let h = spawn(StageKind::Control, &cfg, &stop);
+    wait_ready(&stats, 1);
+    let clock = MonotonicClock;
+    let g = crate::belief::Gaussian::diagonal(&[0.0; 4], &[0.1; 4]);
+    let t0 = clock.now_ns();
+    let mut sent = Vec::new();
+    // One belief alone first (the stage's sequence tracking starts at the
+    // first belief it sees), then the burst.
+    for k in 0..=n {
+        let mut b = Belief::default();
+        b.set_gaussian(&g);
+        b.header.seq = k;
+        b.header.t_valid_ns = t0 + k * 1_000_000;
+        b.header.t_pub_ns = clock.now_ns();
+        beliefs.publish(&b).unwrap();
+        if k == 0 {
+            poll_until(Duration::from_secs(10), || controls.receive().unwrap());
+        } else {
+            sent.push(b.header.t_valid_ns);
+        }
+    }
+    let mut got = Vec::new();
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while got.last() != sent.last() && std::time::Instant::now() < deadline {
+        while let Some(c) = controls.receive().unwrap() {
+            got.push(c.header.t_valid_ns);
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    stop.store(true, Ordering::SeqCst);
+    let fin = h.join().unwrap().unwrap();
+    (sent, got, fin)
+}
+
+#[test]
+fn a_belief_queue_controls_every_belief_of_a_burst_in_order() {
+    // Six beliefs published back to back, each control a few hundred µs:
+    // the latest-value reader computes on the newest and drops the rest...
+    let (sent, got, fin) = control_after_burst(1, 6);
+    assert_eq!(got.last(), sent.last(), "the newest belief is controlled");
+    assert!(got.len() < sent.len(), "latest value: {got:?}");
+    assert_eq!(fin.processed + fin.dropped, 7);
+    // ... a queue computes one control per belief, in order, none dropped.
+    let (sent, got, fin) = control_after_burst(8, 6);
+    assert_eq!(got, sent);
+    assert_eq!((fin.processed, fin.dropped), (7, 0));
+}
+
 #[test]
 fn control_skips_stale_beliefs_under_the_freshness_policy() {
     let cfg = test_config(&["control.mppi.samples=64", "control.max_belief_age_us=20000"]);
