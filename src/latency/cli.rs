@@ -431,6 +431,7 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
             controls: m.controls,
             stages: m.stages.iter().cloned().collect(),
             hops: m.report_hops.clone(),
+            accuracy: m.report_accuracy.clone(),
         });
     }
     let report = JitterReport {

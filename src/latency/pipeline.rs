@@ -49,6 +49,10 @@ pub struct PipelineJitterConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StageFigures {
     pub processed: u64,
+    /// Inputs received but not processed (superseded, stale, lost, still
+    /// queued at shutdown) — for control: beliefs without a control.
+    #[serde(default)]
+    pub dropped: u64,
     pub deadline_misses: u64,
     /// Of the misses, those during which the stage's own CPU time stayed
     /// within the budget (preempted, not an overrun).
@@ -81,6 +85,8 @@ pub struct PipelineJitter {
     pub stages: Vec<(String, StageFigures)>,
     /// `hops` of the run report (percentile blocks in µs).
     pub report_hops: serde_json::Value,
+    /// `accuracy` of the run report (estimation error after the warm-up).
+    pub report_accuracy: serde_json::Value,
     /// Shared-memory files of the run left after it ended.
     pub shm_left: usize,
     pub stopped: bool,
@@ -159,6 +165,7 @@ fn stage_figures(report: &serde_json::Value) -> Vec<(String, StageFigures)> {
                 name.to_string(),
                 StageFigures {
                     processed: s["processed"].as_u64().unwrap_or(0),
+                    dropped: s["dropped"].as_u64().unwrap_or(0),
                     deadline_misses: s["deadline_misses"].as_u64().unwrap_or(0),
                     deadline_misses_preempted: s["deadline_misses_preempted"].as_u64().unwrap_or(0),
                     budget_us: s["budget_us"].as_f64(),
@@ -242,6 +249,7 @@ pub fn measure(
         sensor_to_ingest: LatencyHist::new(),
         stages: Vec::new(),
         report_hops: serde_json::Value::Null,
+        report_accuracy: serde_json::Value::Null,
         shm_left: 0,
         stopped: false,
     };
@@ -329,6 +337,7 @@ pub fn measure(
         (Some(s), Some(r)) if s.success() || out.stopped => {
             out.stages = stage_figures(r);
             out.report_hops = r["hops"].clone();
+            out.report_accuracy = r["accuracy"].clone();
         }
         (s, _) if !out.stopped => {
             return Err(err(format!(

@@ -114,6 +114,10 @@ pub struct PipelineInfo {
     pub stages: std::collections::BTreeMap<String, crate::latency::pipeline::StageFigures>,
     /// The run report's hops (its whole run after warm-up).
     pub hops: serde_json::Value,
+    /// The run report's accuracy (rmse_position, its raw-inversion
+    /// reference, ...; after warm-up).
+    #[serde(default)]
+    pub accuracy: serde_json::Value,
 }
 
 /// The baseline entries (merged, per core) of a timer run.
@@ -193,9 +197,10 @@ impl JitterReport {
             let o = |x: Option<f64>| x.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
             for (name, f) in &p.stages {
                 s += &format!(
-                    "  {:<8} processed {:>8}  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5} (preempted {:>5})  late {:>5}  lateness p99 {:>8}\n",
+                    "  {:<8} processed {:>8}  dropped {:>5}  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5} (preempted {:>5})  late {:>5}  lateness p99 {:>8}\n",
                     name,
                     f.processed,
+                    f.dropped,
                     o(f.compute_p50_us),
                     o(f.compute_p99_us),
                     o(f.budget_us),
@@ -205,6 +210,18 @@ impl JitterReport {
                     o(f.lateness_p99_us)
                 );
             }
+        }
+        if let Some(p) = &self.pipeline {
+            let a = |k: &str| {
+                p.accuracy[k]
+                    .as_f64()
+                    .map_or("-".into(), |v| format!("{v:.3}"))
+            };
+            s += &format!(
+                "accuracy after warm-up: rmse_position {} (raw inversion {})\n",
+                a("rmse_position"),
+                a("rmse_position_raw")
+            );
         }
         s += &self.load.line();
         s.push('\n');
