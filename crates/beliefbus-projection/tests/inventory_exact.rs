@@ -145,3 +145,25 @@ fn greedy_on_a_spread_belief_orders_where_ce_would_not() {
     assert_eq!(greedy_action(&m, &[7.9, 8.0], &[0.5, 0.5]), 0);
     assert_eq!(greedy_action(&m, &[7.6, 7.7], &[0.5, 0.5]), 1);
 }
+
+#[test]
+fn table_ii_reference_is_the_21_term_full_observation_value() {
+    // The paper's Table II percentages imply a reference of 113.70. The
+    // full-observation threshold L* = 7.7 from x_0 = 5 has that expected
+    // discounted cost over i = 0..20 (within 1 %, about one 1000-run
+    // standard error), and not over the stated i = 0..40 or an infinite
+    // horizon (both ~10 % higher).
+    use beliefbus_projection::experiments::paper::{TABLE_II_REFERENCE, TABLE_II_REFERENCE_TERMS};
+    let m = Inventory::paper(1.0).unwrap();
+    let lat = Lattice::new(&m, 0.005, 40.0).unwrap();
+    let act = threshold(7.7);
+    let rel =
+        |terms: usize| lat.discounted_cost(&act, 0.9, terms).unwrap() / TABLE_II_REFERENCE - 1.0;
+    assert_eq!(TABLE_II_REFERENCE_TERMS, 21);
+    assert!(rel(21).abs() < 0.01, "{}", rel(21));
+    // 21 is the closest number of terms (neighbours differ by ~1.4 each).
+    assert!(rel(21).abs() < rel(20).abs() && rel(21).abs() < rel(22).abs());
+    for terms in [41, 400] {
+        assert!(rel(terms) > 0.09, "{terms}: {}", rel(terms));
+    }
+}

@@ -570,7 +570,7 @@ fn notes(
         .collect();
     out.push(format!("full-observation threshold scan (common random numbers): L* = {threshold:.1}; cost near it {}", near.join(" ")));
     out.push(format!("full-observation threshold policy on the evaluation runs: {full_cost:.3} ± {full_se:.3} (paper's implied reference {})",
-        if set.protocol == Protocol::Average { "12.834" } else { "113.70, not reproducible: see the crate docs" }));
+        if set.protocol == Protocol::Average { "12.834" } else { "113.70, a full-observation sum over i = 0..20, not the stated 0..40: see the exact reference above" }));
     let solve: Vec<f64> = results
         .iter()
         .filter(|r| !r.loaded)
