@@ -277,16 +277,14 @@ fn all_stage_loops_close_the_loop_in_one_process() {
     );
 }
 
-/// Publishes a burst of `n` fresh beliefs at once to a control stage with
-/// `belief_queue`; returns the burst's and its controls' valid times and
-/// the final stats (which count one belief before the burst).
-fn control_after_burst(belief_queue: usize, n: u64) -> (Vec<u64>, Vec<u64>, StageStats) {
-    let queue = format!("control.belief_queue={belief_queue}");
-    let cfg = test_config(&[
-        "control.mppi.samples=256",
-        "control.max_belief_age_us=1000000",
-        &queue,
-    ]);
+/// Runs a control stage configured by `sets`, hands `f` a belief publisher
+/// and a polling control subscriber, then stops the stage; returns `f`'s
+/// result and the stage's final stats.
+fn with_control_stage<R>(
+    sets: &[&str],
+    f: impl FnOnce(&mut crate::ipc::Publisher<Belief>, &crate::ipc::Subscriber<Control>) -> R,
+) -> (R, StageStats) {
+    let cfg = test_config(sets);
     let _c = Cleanup(cfg.run.prefix.clone());
     let stop = Arc::new(AtomicBool::new(false));
     let bus = Bus::open(&cfg.bus(), "test").unwrap();
@@ -295,35 +293,51 @@ fn control_after_burst(belief_queue: usize, n: u64) -> (Vec<u64>, Vec<u64>, Stag
     let mut beliefs = bus.publisher::<Belief>().unwrap();
     let h = spawn(StageKind::Control, &cfg, &stop);
     wait_ready(&stats, 1);
-    let clock = MonotonicClock;
-    let g = crate::belief::Gaussian::diagonal(&[0.0; 4], &[0.1; 4]);
-    let t0 = clock.now_ns();
-    let mut sent = Vec::new();
-    // One belief alone first (the stage's sequence tracking starts at the
-    // first belief it sees), then the burst.
-    for k in 0..=n {
-        let mut b = Belief::default();
-        b.set_gaussian(&g);
-        b.header.seq = k;
-        b.header.t_valid_ns = t0 + k * 1_000_000;
-        b.header.t_pub_ns = clock.now_ns();
-        beliefs.publish(&b).unwrap();
-        if k == 0 {
-            poll_until(Duration::from_secs(10), || controls.receive().unwrap());
-        } else {
-            sent.push(b.header.t_valid_ns);
-        }
-    }
-    let mut got = Vec::new();
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while got.last() != sent.last() && std::time::Instant::now() < deadline {
-        while let Some(c) = controls.receive().unwrap() {
-            got.push(c.header.t_valid_ns);
-        }
-        std::thread::sleep(Duration::from_millis(1));
-    }
+    let r = f(&mut beliefs, &controls);
     stop.store(true, Ordering::SeqCst);
-    let fin = h.join().unwrap().unwrap();
+    (r, h.join().unwrap().unwrap())
+}
+
+/// Publishes a burst of `n` fresh beliefs at once to a control stage with
+/// `belief_queue`; returns the burst's and its controls' valid times and
+/// the final stats (which count one belief before the burst).
+fn control_after_burst(belief_queue: usize, n: u64) -> (Vec<u64>, Vec<u64>, StageStats) {
+    let queue = format!("control.belief_queue={belief_queue}");
+    let sets = [
+        "control.mppi.samples=256",
+        "control.max_belief_age_us=1000000",
+        &queue,
+    ];
+    let ((sent, got), fin) = with_control_stage(&sets, |beliefs, controls| {
+        let clock = MonotonicClock;
+        let g = crate::belief::Gaussian::diagonal(&[0.0; 4], &[0.1; 4]);
+        let t0 = clock.now_ns();
+        let mut sent = Vec::new();
+        // One belief alone first (the stage's sequence tracking starts at
+        // the first belief it sees), then the burst.
+        for k in 0..=n {
+            let mut b = Belief::default();
+            b.set_gaussian(&g);
+            b.header.seq = k;
+            b.header.t_valid_ns = t0 + k * 1_000_000;
+            b.header.t_pub_ns = clock.now_ns();
+            beliefs.publish(&b).unwrap();
+            if k == 0 {
+                poll_until(Duration::from_secs(10), || controls.receive().unwrap());
+            } else {
+                sent.push(b.header.t_valid_ns);
+            }
+        }
+        let mut got = Vec::new();
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        while got.last() != sent.last() && std::time::Instant::now() < deadline {
+            while let Some(c) = controls.receive().unwrap() {
+                got.push(c.header.t_valid_ns);
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        (sent, got)
+    });
     (sent, got, fin)
 }
 
@@ -343,37 +357,30 @@ fn a_belief_queue_controls_every_belief_of_a_burst_in_order() {
 
 #[test]
 fn control_skips_stale_beliefs_under_the_freshness_policy() {
-    let cfg = test_config(&["control.mppi.samples=64", "control.max_belief_age_us=20000"]);
-    let _c = Cleanup(cfg.run.prefix.clone());
-    let stop = Arc::new(AtomicBool::new(false));
-    let bus = Bus::open(&cfg.bus(), "test").unwrap();
-    let stats = bus.subscriber::<StageStats>().unwrap();
-    let controls = bus.subscriber_with::<Control>(64, false).unwrap();
-    let mut beliefs = bus.publisher::<Belief>().unwrap();
-    let h = spawn(StageKind::Control, &cfg, &stop);
-    wait_ready(&stats, 1);
-    let clock = MonotonicClock;
-    let g = crate::belief::Gaussian::diagonal(&[0.0; 4], &[0.1; 4]);
-    let mut fresh_t = Vec::new();
-    let mut got_t = Vec::new();
-    for k in 0..10u64 {
-        let mut b = Belief::default();
-        b.set_gaussian(&g);
-        b.header.seq = k;
-        b.header.t_valid_ns = clock.now_ns();
-        // Even beliefs were published 50 ms ago (stale), odd ones now.
-        b.header.t_pub_ns = clock.now_ns() - if k % 2 == 0 { 50_000_000 } else { 0 };
-        if k % 2 == 1 {
-            fresh_t.push(b.header.t_valid_ns);
+    let sets = ["control.mppi.samples=64", "control.max_belief_age_us=20000"];
+    let ((fresh_t, got_t), fin) = with_control_stage(&sets, |beliefs, controls| {
+        let clock = MonotonicClock;
+        let g = crate::belief::Gaussian::diagonal(&[0.0; 4], &[0.1; 4]);
+        let mut fresh_t = Vec::new();
+        let mut got_t = Vec::new();
+        for k in 0..10u64 {
+            let mut b = Belief::default();
+            b.set_gaussian(&g);
+            b.header.seq = k;
+            b.header.t_valid_ns = clock.now_ns();
+            // Even beliefs were published 50 ms ago (stale), odd ones now.
+            b.header.t_pub_ns = clock.now_ns() - if k % 2 == 0 { 50_000_000 } else { 0 };
+            if k % 2 == 1 {
+                fresh_t.push(b.header.t_valid_ns);
+            }
+            beliefs.publish(&b).unwrap();
+            std::thread::sleep(Duration::from_millis(30));
+            while let Some(c) = controls.receive().unwrap() {
+                got_t.push(c.header.t_valid_ns);
+            }
         }
-        beliefs.publish(&b).unwrap();
-        std::thread::sleep(Duration::from_millis(30));
-        while let Some(c) = controls.receive().unwrap() {
-            got_t.push(c.header.t_valid_ns);
-        }
-    }
-    stop.store(true, Ordering::SeqCst);
-    let fin = h.join().unwrap().unwrap();
+        (fresh_t, got_t)
+    });
     // A stale belief is never controlled on; fresh ones are (unless a
     // starved stage found one already stale or superseded).
     assert!(!got_t.is_empty());
