@@ -81,6 +81,7 @@ use crate::MAX_CONTROL;
 
 mod control;
 mod grow;
+pub mod recentred;
 mod update;
 mod weights;
 
@@ -474,5 +475,7 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
     }
 }
 
+#[cfg(test)]
+mod recentred_tests;
 #[cfg(test)]
 mod tests;
