@@ -152,7 +152,7 @@ const SHIP_STATES: &[ParamDoc] = &[
         "auto",
         "local/recentred: belief on the states by cell volume or importance weights (auto: volume for local, importance for recentred)",
     ),
-    p("every", "1", "recentred: re-install the belief every this many observations"),
+    p("every", "10", "recentred: re-install the belief every this many observations"),
     p(
         "ess_fraction",
         "0",
@@ -164,10 +164,10 @@ const SHIP_STATES: &[ParamDoc] = &[
         "recentred: states drawn around the rotation-averaged steady posterior (steady) or the prior",
     ),
     p("ref_range", "1.5", "recentred, around=steady: range of the linearisation"),
-    p("even", "0", "recentred: 1 thins 4n candidates to n by sample elimination"),
+    p("even", "1", "recentred: 1 thins 4n candidates to n by sample elimination"),
     p(
         "cov_match",
-        "0",
+        "2",
         "recentred: corrections of each install's covariance towards the belief's",
     ),
     p(

@@ -284,14 +284,14 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         &["auto", "volume", "importance"],
     )?;
     let rc = Recentred {
-        every: p.usize(&mut rep, "every", 1)?,
+        every: p.usize(&mut rep, "every", 10)?,
         ess_fraction: p.f64(&mut rep, "ess_fraction", 0.0)?,
         importance: install != "volume",
         steady: p.choice(&mut rep, "around", "steady", &["steady", "prior"])? == "steady",
         ref_range: p.f64(&mut rep, "ref_range", 1.5)?,
         spread,
-        even: p.usize(&mut rep, "even", 0)? == 1,
-        cov_match: p.usize(&mut rep, "cov_match", 0)?,
+        even: p.usize(&mut rep, "even", 1)? == 1,
+        cov_match: p.usize(&mut rep, "cov_match", 2)?,
     };
     let uniform_fraction = p.f64(&mut rep, "uniform_fraction", 0.1)?;
     let particles = p.usize(&mut rep, "particles", 100)?;

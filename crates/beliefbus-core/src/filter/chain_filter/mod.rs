@@ -82,6 +82,7 @@ use crate::MAX_CONTROL;
 mod control;
 mod grow;
 pub mod recentred;
+pub mod recentred_spec;
 mod update;
 mod weights;
 
