@@ -8,7 +8,7 @@ use crate::chain::{Chain, ChainConfig, Sampler};
 use crate::filter::kalman::Kalman;
 use crate::filter::BayesFilter;
 use crate::model::linear::LinearSde;
-use crate::model::{simulate_observation, Bounds, Measurement, SdeModel};
+use crate::model::{simulate_observation, Bounds, Measurement};
 use nalgebra::DMatrix;
 
 /// dx = v dt + σ dw₁, dv = σ dw₂ (the ship's free dynamics in one axis),
