@@ -28,6 +28,12 @@
 //!
 //! - `even`: `fixed`'s law, 4n candidates thinned to n by weighted sample
 //!   elimination (`chain::placement::predictive_even`): evenly spread.
+//! - `recentred`: one chain built once in a local frame and carried with
+//!   the belief by a Galilean frame, re-installed on it every `every`
+//!   observations (`ship_states_recentred`, the filter
+//!   `filter::chain_filter::recentred`): a chain around the posterior
+//!   without a build per observation. Its build CPU is reported apart
+//!   (`build_s`) and charged to every run in `cpu_vs_pf_build_per_run`.
 //!
 //! `kernel`: `moment` (moment matching, the `ship` default) or `gaussian`
 //! (the paper's ComputeTransProb, a Gaussian restricted to Near);
