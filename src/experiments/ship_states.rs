@@ -455,7 +455,7 @@ mod tests {
     /// filter tracks (no divergence, error well below the prior's spread).
     #[test]
     fn each_placement_gives_a_row_per_size_and_tracks() {
-        for placement in ["fixed", "even", "local"] {
+        for placement in ["fixed", "even", "local", "recentred"] {
             let args = ExperimentArgs {
                 runs: Some(2),
                 seed: 3,
