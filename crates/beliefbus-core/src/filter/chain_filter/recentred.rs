@@ -76,11 +76,12 @@ pub struct RecentredConfig {
 
 impl Default for RecentredConfig {
     fn default() -> Self {
+        // the ship's measured choice (docs/ship-state-counts.md, section 4)
         Self {
-            every: 1,
+            every: 10,
             ess_fraction: 0.0,
             install: Install::Importance,
-            cov_match: 0,
+            cov_match: 2,
         }
     }
 }
