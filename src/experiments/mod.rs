@@ -29,6 +29,7 @@ pub mod report;
 pub mod ship;
 pub mod ship_control;
 pub mod ship_states;
+pub mod ship_states_recentred;
 pub mod smoothing;
 pub mod vanderpol;
 

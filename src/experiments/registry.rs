@@ -138,7 +138,7 @@ const SHIP_STATES: &[ParamDoc] = &[
     p(
         "placement",
         "fixed",
-        "fixed: one chain over the horizon's predictive; even: the same thinned evenly; local: rebuilt around the predicted belief every step",
+        "fixed: one chain over the horizon's predictive; even: the same thinned evenly; local: rebuilt around the predicted belief every step; recentred: one chain built once in a local frame, carried with the belief and re-installed on it",
     ),
     p("states", "1000,5000,20000", "chain sizes n swept"),
     p("kernel", "moment", "moment (moment matching) or gaussian (the paper's)"),
@@ -146,11 +146,29 @@ const SHIP_STATES: &[ParamDoc] = &[
     p("obs_period_s", "0.01", "time between observations (s)"),
     p("step_s", "= obs_period_s", "the chain's step tau (s); 0: per-state holding times"),
     p("knn_c", "1.5", "neighbour count constant c of k = c log n"),
-    p("spread", "2", "local: std inflation of the states' sampling law"),
+    p("spread", "2", "local/recentred: std inflation of the states' sampling law"),
     p(
         "install",
-        "volume",
-        "local: belief on the new states by cell volume or importance weights",
+        "auto",
+        "local/recentred: belief on the states by cell volume or importance weights (auto: volume for local, importance for recentred)",
+    ),
+    p("every", "10", "recentred: re-install the belief every this many observations"),
+    p(
+        "ess_fraction",
+        "0",
+        "recentred: re-install also when the effective states fall below this fraction of n",
+    ),
+    p(
+        "around",
+        "steady",
+        "recentred: states drawn around the rotation-averaged steady posterior (steady) or the prior",
+    ),
+    p("ref_range", "1.5", "recentred, around=steady: range of the linearisation"),
+    p("even", "1", "recentred: 1 thins 4n candidates to n by sample elimination"),
+    p(
+        "cov_match",
+        "2",
+        "recentred: corrections of each install's covariance towards the belief's",
     ),
     p(
         "uniform_fraction",

@@ -28,6 +28,12 @@
 //!
 //! - `even`: `fixed`'s law, 4n candidates thinned to n by weighted sample
 //!   elimination (`chain::placement::predictive_even`): evenly spread.
+//! - `recentred`: one chain built once in a local frame and carried with
+//!   the belief by a Galilean frame, re-installed on it every `every`
+//!   observations (`ship_states_recentred`, the filter
+//!   `filter::chain_filter::recentred`): a chain around the posterior
+//!   without a build per observation. Its build CPU is reported apart
+//!   (`build_s`) and charged to every run in `cpu_vs_pf_build_per_run`.
 //!
 //! `kernel`: `moment` (moment matching, the `ship` default) or `gaussian`
 //! (the paper's ComputeTransProb, a Gaussian restricted to Near);
@@ -43,6 +49,7 @@
 use anyhow::Result;
 
 use super::chain_util::{draw_from, mean_se, simulate, Params, Record};
+use super::ship_states_recentred::{filter as recentred_filter, sampling_law, Recentred};
 use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::belief::Gaussian;
 use crate::chain::{Chain, ChainConfig, NearRule, Sampler};
@@ -263,7 +270,12 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let runs = args.runs.unwrap_or(20);
     rep.param("runs", runs);
     rep.param("seed", args.seed);
-    let placement = p.choice(&mut rep, "placement", "fixed", &["fixed", "even", "local"])?;
+    let placement = p.choice(
+        &mut rep,
+        "placement",
+        "fixed",
+        &["fixed", "even", "local", "recentred"],
+    )?;
     let sizes = p.list(&mut rep, "states", &[1000, 5000, 20000])?;
     let kernel = p.choice(&mut rep, "kernel", "moment", &["moment", "gaussian"])?;
     let t_end = p.f64(&mut rep, "horizon_s", 5.0)?;
@@ -271,7 +283,22 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let step = p.f64(&mut rep, "step_s", dt)?;
     let knn_c = p.f64(&mut rep, "knn_c", 1.5)?;
     let spread = p.f64(&mut rep, "spread", 2.0)?;
-    let install = p.choice(&mut rep, "install", "volume", &["volume", "importance"])?;
+    let install = p.choice(
+        &mut rep,
+        "install",
+        "auto",
+        &["auto", "volume", "importance"],
+    )?;
+    let rc = Recentred {
+        every: p.usize(&mut rep, "every", 10)?,
+        ess_fraction: p.f64(&mut rep, "ess_fraction", 0.0)?,
+        importance: install != "volume",
+        steady: p.choice(&mut rep, "around", "steady", &["steady", "prior"])? == "steady",
+        ref_range: p.f64(&mut rep, "ref_range", 1.5)?,
+        spread,
+        even: p.usize(&mut rep, "even", 1)? == 1,
+        cov_match: p.usize(&mut rep, "cov_match", 2)?,
+    };
     let uniform_fraction = p.f64(&mut rep, "uniform_fraction", 0.1)?;
     let particles = p.usize(&mut rep, "particles", 100)?;
     p.finish()?;
@@ -282,6 +309,9 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         spread,
         importance: install == "importance",
     };
+    if rc.every == 0 || !(0.0..=1.0).contains(&rc.ess_fraction) {
+        anyhow::bail!("every must be ≥ 1 and ess_fraction in [0, 1]");
+    }
     let model = Ship::new(ShipParams::paper(dt)).map_err(anyhow::Error::msg)?;
     let prior = Gaussian::diagonal(&super::ship::START, &[0.3, 0.3, 0.2, 0.2]);
     let steps = (t_end / dt).round() as usize;
@@ -313,7 +343,25 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     rep.results.push(row("pf", particles, &pf));
     let name = format!("chain-{placement}");
     for &n in &sizes {
-        let scores: Vec<Score> = if placement != "local" {
+        let mut build_s = 0.0;
+        let scores: Vec<Score> = if placement == "recentred" {
+            let mut rng = stream(args.seed, 77);
+            let q = sampling_law(&model, &prior, &rc, dt)?;
+            let b0 = crate::rt::clock::thread_cpu_ns();
+            let mut cf = recentred_filter(&model, &q, n, &rc, make.config(), dt, &mut rng)?;
+            build_s = (crate::rt::clock::thread_cpu_ns() - b0) as f64 * 1e-9;
+            records
+                .iter()
+                .map(|rec| {
+                    bar.tick();
+                    let before = cf.collapses();
+                    cf.reset(0.0, &prior);
+                    let mut s = score(&mut cf, rec);
+                    s.collapses -= before;
+                    s
+                })
+                .collect()
+        } else if placement != "local" {
             let mut rng = stream(args.seed, 77);
             let pts = if placement == "fixed" {
                 crate::chain::placement::predictive_points(
@@ -361,8 +409,16 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                 })
                 .collect()
         };
-        rep.results
-            .push(paired(row(&name, n, &scores), &scores, &pf));
+        let r = paired(row(&name, n, &scores), &scores, &pf);
+        rep.results.push(if placement == "recentred" {
+            // the chain is data-free: built once; charged here to every run
+            let pf_cpu: f64 = pf.iter().map(|s| s.cpu_s).sum();
+            let with: f64 = scores.iter().map(|s| s.cpu_s + build_s).sum();
+            r.num("build_s", build_s)
+                .num("cpu_vs_pf_build_per_run", with / pf_cpu.max(1e-12))
+        } else {
+            r
+        });
     }
     rep.paper.push(
         Row::new("chain")
@@ -399,7 +455,7 @@ mod tests {
     /// filter tracks (no divergence, error well below the prior's spread).
     #[test]
     fn each_placement_gives_a_row_per_size_and_tracks() {
-        for placement in ["fixed", "even", "local"] {
+        for placement in ["fixed", "even", "local", "recentred"] {
             let args = ExperimentArgs {
                 runs: Some(2),
                 seed: 3,

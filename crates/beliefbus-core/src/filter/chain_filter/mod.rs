@@ -81,6 +81,8 @@ use crate::MAX_CONTROL;
 
 mod control;
 mod grow;
+pub mod recentred;
+pub mod recentred_spec;
 mod update;
 mod weights;
 
@@ -474,5 +476,7 @@ impl<M: SdeModel> BayesFilter for ChainFilter<M> {
     }
 }
 
+#[cfg(test)]
+mod recentred_tests;
 #[cfg(test)]
 mod tests;
