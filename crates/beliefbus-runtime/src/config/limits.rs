@@ -281,7 +281,11 @@ impl PipelineConfig {
         // The snapshot channel is created whatever the filter backend (refine
         // always runs), so it is always held to the limit.
         let dim = dims.state;
-        let with_default_c = chain_bytes(dim, rf.max_states, super::default_knn_c().min(rf.knn_c));
+        let with_default_c = chain_bytes(
+            dim,
+            rf.max_states,
+            super::refine::default_knn_c().min(rf.knn_c),
+        );
         let chain_key = if with_default_c <= memory_cap() as f64 {
             "refine.knn_c"
         } else {
