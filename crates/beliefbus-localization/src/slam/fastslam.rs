@@ -18,7 +18,7 @@
 //! S = H_x Σ₁ H_xᵀ + H_m P H_mᵀ + Σ₂. Particles' maps share blocks
 //! ([`super::map`]) so resampling copies are cheap.
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::particles::SlamParticles;
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
@@ -113,6 +113,7 @@ pub struct FastSlam {
     stats: SlamStats,
     step: usize,
     assoc: Vec<Association>,
+    forced: Forced,
 }
 
 impl FastSlam {
@@ -130,6 +131,7 @@ impl FastSlam {
             stats: SlamStats::default(),
             step: 0,
             assoc: Vec::with_capacity(32),
+            forced: Forced::with_capacity(32),
         })
     }
 }
@@ -146,6 +148,7 @@ impl SlamFilter for FastSlam {
         self.set.reset(start);
         self.stats = SlamStats::default();
         self.step = 0;
+        self.forced.clear();
     }
 
     fn step(
@@ -174,7 +177,7 @@ impl SlamFilter for FastSlam {
             let sx = t * s0 * t.transpose();
             self.assoc.clear();
             let map = &self.set.maps[j];
-            for z in obs {
+            for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
                 let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
@@ -185,7 +188,11 @@ impl SlamFilter for FastSlam {
                         ch.offer(k, &nu, &s, &model.assoc);
                     }
                 }
-                self.assoc.push(ch.decide(&model.assoc));
+                self.assoc.push(
+                    self.forced
+                        .get(i, map.len())
+                        .unwrap_or_else(|| ch.decide(&model.assoc)),
+                );
             }
             let mut lw = 0.0;
             let xi = normal3(rng);
@@ -242,6 +249,7 @@ impl SlamFilter for FastSlam {
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
         }
+        self.forced.clear();
         self.set.reweight(step, rng)?;
         Ok(self.set.estimate())
     }
@@ -251,6 +259,22 @@ impl SlamFilter for FastSlam {
             .iter()
             .map(|l| [l.m[0], l.m[1]])
             .collect()
+    }
+
+    fn force_association(&mut self, a: &[Association]) {
+        self.forced.set(a);
+    }
+
+    fn position_spread(&self) -> f64 {
+        self.set.position_spread()
+    }
+
+    fn mark_ancestors(&mut self, slot: usize) {
+        self.set.mark_ancestors(slot);
+    }
+
+    fn distinct_ancestors(&self, slot: usize) -> Option<usize> {
+        Some(self.set.distinct_ancestors(slot))
     }
 
     fn stats(&self) -> SlamStats {

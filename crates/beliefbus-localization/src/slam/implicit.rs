@@ -30,7 +30,7 @@
 //! [`super::implicit_refine`], which redraws the re-observed feature from
 //! all of the particle's sightings of it (docs/slam.md has the figures).
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::joint::{minimise_joint, JointObjective};
 use super::particles::SlamParticles;
 use super::{SlamFilter, SlamModel, SlamStats};
@@ -65,6 +65,7 @@ pub struct ImplicitSlam {
     known_obs: Vec<Observation>,
     known_map: Vec<Point>,
     new_obs: Vec<RangeBearing>,
+    forced: Forced,
 }
 
 impl ImplicitSlam {
@@ -84,6 +85,7 @@ impl ImplicitSlam {
             known_obs: Vec::with_capacity(32),
             known_map: Vec::with_capacity(32),
             new_obs: Vec::with_capacity(32),
+            forced: Forced::with_capacity(32),
         })
     }
 }
@@ -131,6 +133,7 @@ impl SlamFilter for ImplicitSlam {
         self.set.reset(start);
         self.stats = SlamStats::default();
         self.step = 0;
+        self.forced.clear();
     }
 
     fn step(
@@ -167,7 +170,7 @@ impl SlamFilter for ImplicitSlam {
             self.new_obs.clear();
             let mut discarded = 0usize;
             let map = &self.set.maps[j];
-            for z in obs {
+            for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
                 let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
@@ -177,7 +180,11 @@ impl SlamFilter for ImplicitSlam {
                         ch.offer(k, &nu, &s, &model.assoc);
                     }
                 }
-                match ch.decide(&model.assoc) {
+                match self
+                    .forced
+                    .get(i, map.len())
+                    .unwrap_or_else(|| ch.decide(&model.assoc))
+                {
                     Association::Known(k) => {
                         self.known_obs.push(Observation {
                             range: z.range,
@@ -285,12 +292,29 @@ impl SlamFilter for ImplicitSlam {
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
         }
+        self.forced.clear();
         self.set.reweight(step, rng)?;
         Ok(self.set.estimate())
     }
 
     fn map(&self) -> Vec<Point> {
         self.set.maps[self.set.best()].iter().map(|l| l.m).collect()
+    }
+
+    fn force_association(&mut self, a: &[Association]) {
+        self.forced.set(a);
+    }
+
+    fn position_spread(&self) -> f64 {
+        self.set.position_spread()
+    }
+
+    fn mark_ancestors(&mut self, slot: usize) {
+        self.set.mark_ancestors(slot);
+    }
+
+    fn distinct_ancestors(&self, slot: usize) -> Option<usize> {
+        Some(self.set.distinct_ancestors(slot))
     }
 
     fn stats(&self) -> SlamStats {

@@ -18,7 +18,7 @@
 //! criticises" in θ); kept as a comparison for reading (i), whose map is
 //! sampled once and never refined.
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::fastslam::{init_landmark, update_landmark, Landmark};
 use super::particles::SlamParticles;
 use super::{SlamFilter, SlamModel, SlamStats};
@@ -67,6 +67,7 @@ pub struct ImplicitRbSlam {
     stats: SlamStats,
     step: usize,
     assoc: Vec<Association>,
+    forced: Forced,
     terms: Vec<Term>,
 }
 
@@ -85,6 +86,7 @@ impl ImplicitRbSlam {
             stats: SlamStats::default(),
             step: 0,
             assoc: Vec::with_capacity(32),
+            forced: Forced::with_capacity(32),
             terms: Vec::with_capacity(32),
         })
     }
@@ -170,6 +172,7 @@ impl SlamFilter for ImplicitRbSlam {
         self.set.reset(start);
         self.stats = SlamStats::default();
         self.step = 0;
+        self.forced.clear();
     }
 
     fn step(
@@ -203,7 +206,7 @@ impl SlamFilter for ImplicitRbSlam {
             self.terms.clear();
             let mut lw = 0.0;
             let map = &self.set.maps[j];
-            for z in obs {
+            for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
                 let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
@@ -214,7 +217,10 @@ impl SlamFilter for ImplicitRbSlam {
                         ch.offer(k, &nu, &s, &model.assoc);
                     }
                 }
-                let a = ch.decide(&model.assoc);
+                let a = self
+                    .forced
+                    .get(i, map.len())
+                    .unwrap_or_else(|| ch.decide(&model.assoc));
                 if let Association::Known(k) = a {
                     let lm = map.get(k).expect("k < len");
                     let m = [lm.m[0], lm.m[1]];
@@ -280,6 +286,7 @@ impl SlamFilter for ImplicitRbSlam {
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
         }
+        self.forced.clear();
         self.set.reweight(step, rng)?;
         Ok(self.set.estimate())
     }
@@ -289,6 +296,22 @@ impl SlamFilter for ImplicitRbSlam {
             .iter()
             .map(|l| [l.m[0], l.m[1]])
             .collect()
+    }
+
+    fn force_association(&mut self, a: &[Association]) {
+        self.forced.set(a);
+    }
+
+    fn position_spread(&self) -> f64 {
+        self.set.position_spread()
+    }
+
+    fn mark_ancestors(&mut self, slot: usize) {
+        self.set.mark_ancestors(slot);
+    }
+
+    fn distinct_ancestors(&self, slot: usize) -> Option<usize> {
+        Some(self.set.distinct_ancestors(slot))
     }
 
     fn stats(&self) -> SlamStats {

@@ -27,7 +27,7 @@
 //! counted.
 
 use super::arrow::Arrow;
-use super::assoc::{inverse, near, Association, Chooser, RangeBearing};
+use super::assoc::{inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::implicit::sample_given_pose;
 use super::joint::JointObjective;
 use super::particles::SlamParticles;
@@ -108,6 +108,7 @@ pub struct ImplicitRefineSlam {
     arrow: Arrow,
     /// Per return: its association.
     assoc: Vec<Association>,
+    forced: Forced,
     /// Per block of the arrow: the landmark index (None: new).
     block_lm: Vec<Option<usize>>,
     zs: Vec<RangeBearing>,
@@ -131,6 +132,7 @@ impl ImplicitRefineSlam {
             step: 0,
             arrow: Arrow::default(),
             assoc: Vec::with_capacity(32),
+            forced: Forced::with_capacity(32),
             block_lm: Vec::with_capacity(32),
             zs: Vec::with_capacity(32),
             xi_t: Vec::with_capacity(32),
@@ -148,6 +150,7 @@ impl SlamFilter for ImplicitRefineSlam {
         self.set.reset(start);
         self.stats = SlamStats::default();
         self.step = 0;
+        self.forced.clear();
     }
 
     fn step(
@@ -182,7 +185,7 @@ impl SlamFilter for ImplicitRefineSlam {
             let prec = noise.precision(x[2]);
             self.assoc.clear();
             let map = &self.set.maps[j];
-            for z in obs {
+            for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
                 let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
@@ -192,7 +195,11 @@ impl SlamFilter for ImplicitRefineSlam {
                         ch.offer(k, &nu, &s, &model.assoc);
                     }
                 }
-                self.assoc.push(ch.decide(&model.assoc));
+                self.assoc.push(
+                    self.forced
+                        .get(i, map.len())
+                        .unwrap_or_else(|| ch.decide(&model.assoc)),
+                );
             }
             // One block per distinct known landmark (all its returns), one
             // per new return.
@@ -319,12 +326,29 @@ impl SlamFilter for ImplicitRefineSlam {
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
         }
+        self.forced.clear();
         self.set.reweight(step, rng)?;
         Ok(self.set.estimate())
     }
 
     fn map(&self) -> Vec<Point> {
         self.set.maps[self.set.best()].iter().map(|l| l.m).collect()
+    }
+
+    fn force_association(&mut self, a: &[Association]) {
+        self.forced.set(a);
+    }
+
+    fn position_spread(&self) -> f64 {
+        self.set.position_spread()
+    }
+
+    fn mark_ancestors(&mut self, slot: usize) {
+        self.set.mark_ancestors(slot);
+    }
+
+    fn distinct_ancestors(&self, slot: usize) -> Option<usize> {
+        Some(self.set.distinct_ancestors(slot))
     }
 
     fn stats(&self) -> SlamStats {

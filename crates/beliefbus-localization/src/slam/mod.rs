@@ -24,6 +24,8 @@ pub mod arrow;
 #[cfg(test)]
 mod arrow_tests;
 pub mod assoc;
+#[cfg(test)]
+mod diag_tests;
 pub mod driver;
 pub mod ekf;
 pub mod fastslam;
@@ -134,4 +136,17 @@ pub trait SlamFilter {
     /// The map estimate (the heaviest particle's map for particle filters).
     fn map(&self) -> Vec<Point>;
     fn stats(&self) -> SlamStats;
+    /// Impose the association of the next step's returns, one per return,
+    /// in place of the ML rule (the known-association ablation).
+    fn force_association(&mut self, a: &[assoc::Association]);
+    /// √(trace of the position covariance) of the current belief (m).
+    fn position_spread(&self) -> f64;
+    /// Particle filters: label every particle by its index in slot `slot`
+    /// ([`particles::SlamParticles::mark_ancestors`]).
+    fn mark_ancestors(&mut self, _slot: usize) {}
+    /// Particle filters: how many particles labelled in slot `slot` still
+    /// have descendants; `None` for a Gaussian filter.
+    fn distinct_ancestors(&self, _slot: usize) -> Option<usize> {
+        None
+    }
 }
