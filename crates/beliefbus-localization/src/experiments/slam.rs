@@ -164,7 +164,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p(
         "association",
         "ml",
-        "'ml': the shared maximum-likelihood rule; 'known': every filter is handed the true association (ablation)",
+        "'ml': the shared maximum-likelihood rule, once per particle; 'shared': once per return for the whole particle set (slam::shared_assoc); 'known': every filter is handed the true association (ablation)",
     ),
     p(
         "per_run",
@@ -237,8 +237,8 @@ pub struct Setup {
     pub newton: NewtonSettings,
     pub methods: Vec<(&'static str, usize)>,
     pub plot: Option<String>,
-    /// Hand the filters the true association (ablation).
-    pub known_association: bool,
+    /// How the filters associate returns.
+    pub assoc: AssocMode,
     /// Write each data set's figures per method here (CSV).
     pub per_run: Option<String>,
 }
@@ -347,21 +347,12 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
         },
         methods,
         plot,
-        known_association: match ps.raw("association").unwrap_or("ml") {
-            "ml" => false,
-            "known" => true,
-            v => {
-                return Err(LocalizationError::Param {
-                    key: "association".into(),
-                    msg: format!("'{v}': need 'ml' or 'known'"),
-                })
-            }
-        },
+        assoc: AssocMode::parse(ps.raw("association").unwrap_or("ml"))?,
         per_run: ps.raw("per_run").map(str::to_string),
     })
 }
 
-pub use super::slam_run::{make_filter, RunMetrics};
+pub use super::slam_run::{make_filter, AssocMode, RunMetrics};
 
 /// `slam`: Table 6 with `runs` data sets (default 50, the paper's).
 pub fn run(
@@ -429,7 +420,7 @@ pub fn run(
                 },
                 seen.len(),
                 &mut rng,
-                s.known_association,
+                s.assoc,
                 &mut est,
             )?;
             if r == 0 && s.plot.is_some() && shown.contains(&i) {
@@ -548,10 +539,7 @@ pub fn run(
     rep.notes.push(
         "times are wall-clock on a shared 2-core machine under load from other builds".into(),
     );
-    rep.param(
-        "association_given",
-        if s.known_association { "known" } else { "ml" },
-    );
+    rep.param("association_given", s.assoc.name());
     if let Some(path) = &s.per_run {
         std::fs::write(path, &per_run).map_err(|e| LocalizationError::Param {
             key: "per_run".into(),

@@ -39,6 +39,39 @@ pub fn make_filter(
     })
 }
 
+/// How the filters associate returns with landmarks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AssocMode {
+    /// The ML rule, once per particle (FastSLAM's per-particle association).
+    PerParticle,
+    /// The ML rule once per return for the whole particle set.
+    Shared,
+    /// The true association (ablation).
+    Known,
+}
+
+impl AssocMode {
+    pub fn parse(s: &str) -> Result<Self, LocalizationError> {
+        match s {
+            "ml" => Ok(Self::PerParticle),
+            "shared" => Ok(Self::Shared),
+            "known" => Ok(Self::Known),
+            v => Err(LocalizationError::Param {
+                key: "association".into(),
+                msg: format!("'{v}': need 'ml', 'shared' or 'known'"),
+            }),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::PerParticle => "ml",
+            Self::Shared => "shared",
+            Self::Known => "known",
+        }
+    }
+}
+
 /// Figures of one filter run.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RunMetrics {
@@ -79,11 +112,12 @@ pub fn run_one(
     picks: &[Pick],
     seen: usize,
     rng: &mut SimRng,
-    known_association: bool,
+    assoc: AssocMode,
     est: &mut [Pose],
 ) -> Result<(RunMetrics, Vec<Point>), LocalizationError> {
     let opt = RunOptions {
-        known_association,
+        known_association: assoc == AssocMode::Known,
+        shared_association: assoc == AssocMode::Shared,
         marks: mark_steps(cp.steps()),
     };
     let mut spread2 = 0.0;

@@ -167,6 +167,15 @@ impl Forced {
         self.0.clear();
     }
 
+    /// Impose `a` on the next return in order.
+    pub fn push(&mut self, a: Association) {
+        self.0.push(a);
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
     /// The imposed association of return `i` against a map of `len`
     /// landmarks, if any.
     pub fn get(&self, i: usize, len: usize) -> Option<Association> {

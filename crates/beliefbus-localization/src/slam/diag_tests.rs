@@ -90,6 +90,7 @@ fn imposed_association_gives_one_landmark_per_true_landmark_in_order() {
         for known in [false, true] {
             let opt = RunOptions {
                 known_association: known,
+                shared_association: false,
                 marks: Vec::new(),
             };
             run_carpark_with(
@@ -168,4 +169,112 @@ fn position_spread_is_the_weighted_rms_distance_and_the_ekf_trace() {
         "{} vs {want}",
         ekf.position_spread()
     );
+}
+
+/// Shared association: with every particle alike it is the per-particle
+/// rule; with the particles spread to both sides of the truth it matches a
+/// return each particle alone would take for a new landmark; with maps of
+/// different lengths it declines.
+#[test]
+fn shared_association_scores_the_set_and_reduces_to_the_particle_rule() {
+    use super::assoc::{innovation, AssocConfig, Association, Chooser, RangeBearing};
+    use super::shared_assoc::shared_association;
+    use crate::laser::predict;
+    use nalgebra::{Matrix2, Matrix3};
+    let ute = crate::vehicle::Ute::default();
+    let u = Control { v: 2.0, alpha: 0.0 };
+    let s0 = Matrix3::from_diagonal(&nalgebra::Vector3::new(1e-4, 1e-4, 1e-6));
+    let r = Matrix2::new(0.0025, 0.0, 0.0, 1e-6);
+    let cfg = AssocConfig::default();
+    let cov = Matrix2::from_diagonal_element(1e-4);
+    let truth = Pose::new(0.0, 0.0, 0.0);
+    let mk = [0.0, 8.0];
+    let f = ute.predict_mean(&truth, u);
+    let (range, bearing) = predict(&f, mk);
+    let z = RangeBearing { range, bearing };
+    let lm = |l: &[f64; 2]| (*l, cov);
+    // Every particle at the truth: the per-particle rule's answer.
+    let mut set: SlamParticles<[f64; 2]> = SlamParticles::new(4, 0.5).unwrap();
+    set.reset(&truth);
+    for m in set.maps.iter_mut() {
+        m.push(mk);
+    }
+    let a = shared_association(&set, &ute, u, &s0, &r, &z, &cfg, lm).unwrap();
+    let (nu, hx, hm) = innovation(&f, mk, &z);
+    let mut ch = Chooser::new();
+    ch.offer(
+        0,
+        &nu,
+        &(hx * s0 * hx.transpose() + hm * cov * hm.transpose() + r),
+        &cfg,
+    );
+    assert_eq!(a, ch.decide(&cfg));
+    assert_eq!(a, Association::Known(0));
+    // Particles 1 m to either side: each alone starts a new landmark.
+    for (j, dx) in [-1.0, 1.0, -1.0, 1.0].into_iter().enumerate() {
+        set.x[j] = Pose::new(dx, 0.0, 0.0);
+        let fj = ute.predict_mean(&set.x[j], u);
+        let (nu, hx, hm) = innovation(&fj, mk, &z);
+        let mut ch = Chooser::new();
+        ch.offer(
+            0,
+            &nu,
+            &(hx * s0 * hx.transpose() + hm * cov * hm.transpose() + r),
+            &cfg,
+        );
+        assert_eq!(ch.decide(&cfg), Association::New);
+    }
+    let a = shared_association(&set, &ute, u, &s0, &r, &z, &cfg, lm).unwrap();
+    assert_eq!(a, Association::Known(0));
+    // Maps of different lengths: no shared indexing.
+    set.maps[2].push([5.0, 5.0]);
+    assert_eq!(
+        shared_association(&set, &ute, u, &s0, &r, &z, &cfg, lm),
+        None
+    );
+}
+
+/// Over a run with shared association every particle filter keeps one
+/// indexing: all its particles' maps have the same length.
+#[test]
+fn shared_association_keeps_the_particles_maps_aligned() {
+    let rec = straight(20.0);
+    let cfg = CarParkConfig {
+        start_time: 0.0,
+        duration: 20.0,
+        gap_every: 10.0,
+        gap_len: 1.0,
+        motion: model().motion,
+        truth_noise: 1.0,
+        ..Default::default()
+    };
+    let cp = CarPark::generate(&rec, &cfg, &mut stream(3, 1)).unwrap();
+    let picks = pick_one_per_scan(&cp, &mut stream(4, 1));
+    let nw = NewtonSettings::default();
+    let m = model();
+    let opt = RunOptions {
+        known_association: false,
+        shared_association: true,
+        marks: Vec::new(),
+    };
+    let mut fs = FastSlam::new(m, Version::Two, 20, 0.5).unwrap();
+    run_carpark_with(&mut fs, &cp, &picks, &mut stream(5, 1), &opt, |_, _, _| {}).unwrap();
+    let l = lens(&fs.set.maps);
+    assert!(l[0] >= 3 && l.iter().all(|&x| x == l[0]), "{l:?}");
+    let mut im = ImplicitSlam::new(m, 20, 0.5, nw).unwrap();
+    run_carpark_with(&mut im, &cp, &picks, &mut stream(5, 1), &opt, |_, _, _| {}).unwrap();
+    let l = lens(&im.set.maps);
+    assert!(l[0] >= 3 && l.iter().all(|&x| x == l[0]), "{l:?}");
+    let mut rf = ImplicitRefineSlam::new(m, 20, 0.5, nw).unwrap();
+    run_carpark_with(&mut rf, &cp, &picks, &mut stream(5, 1), &opt, |_, _, _| {}).unwrap();
+    let l = lens(&rf.set.maps);
+    assert!(l[0] >= 3 && l.iter().all(|&x| x == l[0]), "{l:?}");
+    let mut rb = ImplicitRbSlam::new(m, 20, 0.5, nw).unwrap();
+    run_carpark_with(&mut rb, &cp, &picks, &mut stream(5, 1), &opt, |_, _, _| {}).unwrap();
+    let l = lens(&rb.set.maps);
+    assert!(l[0] >= 3 && l.iter().all(|&x| x == l[0]), "{l:?}");
+}
+
+fn lens<L: Clone>(maps: &[super::map::SharedMap<L>]) -> Vec<usize> {
+    maps.iter().map(|x| x.len()).collect()
 }

@@ -61,6 +61,9 @@ pub struct RunOptions {
     /// order of first sighting, the same in every particle's map) instead
     /// of the ML rule.
     pub known_association: bool,
+    /// Particle filters associate each return once for the whole set
+    /// ([`super::shared_assoc`]) instead of once per particle.
+    pub shared_association: bool,
     /// `(step, slot)`: label the particles' ancestors in `slot` just after
     /// step `step` ([`SlamFilter::mark_ancestors`]).
     pub marks: Vec<(usize, usize)>,
@@ -75,6 +78,7 @@ pub fn run_carpark_with(
     opt: &RunOptions,
     mut each: impl FnMut(usize, &Pose, &dyn SlamFilter),
 ) -> Result<(), LocalizationError> {
+    filter.set_shared_association(opt.shared_association);
     filter.reset(&cp.truth[0]);
     let mut order: Vec<usize> = Vec::new();
     let mut it = picks.iter().peekable();

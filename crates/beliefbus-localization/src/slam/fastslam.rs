@@ -20,6 +20,7 @@
 
 use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::particles::SlamParticles;
+use super::shared_assoc::shared_association;
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -114,6 +115,7 @@ pub struct FastSlam {
     step: usize,
     assoc: Vec<Association>,
     forced: Forced,
+    shared: bool,
 }
 
 impl FastSlam {
@@ -132,6 +134,7 @@ impl FastSlam {
             step: 0,
             assoc: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
+            shared: false,
         })
     }
 }
@@ -169,6 +172,18 @@ impl SlamFilter for FastSlam {
         let r = model.r();
         let log_new = model.log_new_density();
         let s0 = noise.chol * noise.chol.transpose();
+        if self.shared && self.forced.is_empty() {
+            for z in obs {
+                let lm = |l: &Landmark| ([l.m[0], l.m[1]], l.p);
+                match shared_association(&self.set, &ute, u, &s0, &r, z, &model.assoc, lm) {
+                    Some(a) => self.forced.push(a),
+                    None => {
+                        self.forced.clear();
+                        break;
+                    }
+                }
+            }
+        }
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
             let x = self.set.x[j];
@@ -259,6 +274,10 @@ impl SlamFilter for FastSlam {
             .iter()
             .map(|l| [l.m[0], l.m[1]])
             .collect()
+    }
+
+    fn set_shared_association(&mut self, on: bool) {
+        self.shared = on;
     }
 
     fn force_association(&mut self, a: &[Association]) {

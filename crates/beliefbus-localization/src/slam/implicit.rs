@@ -33,6 +33,7 @@
 use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::joint::{minimise_joint, JointObjective};
 use super::particles::SlamParticles;
+use super::shared_assoc::shared_association;
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -66,6 +67,7 @@ pub struct ImplicitSlam {
     known_map: Vec<Point>,
     new_obs: Vec<RangeBearing>,
     forced: Forced,
+    shared: bool,
 }
 
 impl ImplicitSlam {
@@ -86,6 +88,7 @@ impl ImplicitSlam {
             known_map: Vec::with_capacity(32),
             new_obs: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
+            shared: false,
         })
     }
 }
@@ -156,6 +159,18 @@ impl SlamFilter for ImplicitSlam {
         let ln2pi = (2.0 * std::f64::consts::PI).ln();
         let log_new = model.log_new_density();
         let s0 = noise.chol * noise.chol.transpose();
+        if self.shared && self.forced.is_empty() {
+            for z in obs {
+                let lm = |l: &SampledLandmark| (l.m, l.cov);
+                match shared_association(&self.set, &ute, u, &s0, &r, z, &model.assoc, lm) {
+                    Some(a) => self.forced.push(a),
+                    None => {
+                        self.forced.clear();
+                        break;
+                    }
+                }
+            }
+        }
         // −½ log det Σ₁: the motion density's normaliser, which the linear
         // map's weight keeps and a motion-model proposal cancels.
         let motion_norm = -(0..3).map(|i| noise.chol[(i, i)].ln()).sum::<f64>();
@@ -299,6 +314,10 @@ impl SlamFilter for ImplicitSlam {
 
     fn map(&self) -> Vec<Point> {
         self.set.maps[self.set.best()].iter().map(|l| l.m).collect()
+    }
+
+    fn set_shared_association(&mut self, on: bool) {
+        self.shared = on;
     }
 
     fn force_association(&mut self, a: &[Association]) {

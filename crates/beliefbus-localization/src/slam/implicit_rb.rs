@@ -21,6 +21,7 @@
 use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::fastslam::{init_landmark, update_landmark, Landmark};
 use super::particles::SlamParticles;
+use super::shared_assoc::shared_association;
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -68,6 +69,7 @@ pub struct ImplicitRbSlam {
     step: usize,
     assoc: Vec<Association>,
     forced: Forced,
+    shared: bool,
     terms: Vec<Term>,
 }
 
@@ -87,6 +89,7 @@ impl ImplicitRbSlam {
             step: 0,
             assoc: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
+            shared: false,
             terms: Vec::with_capacity(32),
         })
     }
@@ -194,6 +197,18 @@ impl SlamFilter for ImplicitRbSlam {
         let log_new = model.log_new_density();
         let ln2pi = (2.0 * std::f64::consts::PI).ln();
         let s0 = noise.chol * noise.chol.transpose();
+        if self.shared && self.forced.is_empty() {
+            for z in obs {
+                let lm = |l: &Landmark| ([l.m[0], l.m[1]], l.p);
+                match shared_association(&self.set, &ute, u, &s0, &r, z, &model.assoc, lm) {
+                    Some(a) => self.forced.push(a),
+                    None => {
+                        self.forced.clear();
+                        break;
+                    }
+                }
+            }
+        }
         let motion_norm = -(0..3).map(|i| noise.chol[(i, i)].ln()).sum::<f64>();
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
@@ -296,6 +311,10 @@ impl SlamFilter for ImplicitRbSlam {
             .iter()
             .map(|l| [l.m[0], l.m[1]])
             .collect()
+    }
+
+    fn set_shared_association(&mut self, on: bool) {
+        self.shared = on;
     }
 
     fn force_association(&mut self, a: &[Association]) {

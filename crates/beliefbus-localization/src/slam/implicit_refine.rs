@@ -33,6 +33,7 @@ use super::joint::JointObjective;
 use super::particles::SlamParticles;
 use super::refine::{backward_term, Objective};
 use super::refined_map::{Past, RefinedLandmark};
+use super::shared_assoc::shared_association;
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -109,6 +110,7 @@ pub struct ImplicitRefineSlam {
     /// Per return: its association.
     assoc: Vec<Association>,
     forced: Forced,
+    shared: bool,
     /// Per block of the arrow: the landmark index (None: new).
     block_lm: Vec<Option<usize>>,
     zs: Vec<RangeBearing>,
@@ -133,6 +135,7 @@ impl ImplicitRefineSlam {
             arrow: Arrow::default(),
             assoc: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
+            shared: false,
             block_lm: Vec::with_capacity(32),
             zs: Vec::with_capacity(32),
             xi_t: Vec::with_capacity(32),
@@ -174,6 +177,18 @@ impl SlamFilter for ImplicitRefineSlam {
         let ln2pi = (2.0 * std::f64::consts::PI).ln();
         let log_new = model.log_new_density();
         let s0 = noise.chol * noise.chol.transpose();
+        if self.shared && self.forced.is_empty() {
+            for z in obs {
+                let lm = |l: &RefinedLandmark| (l.m, l.cov);
+                match shared_association(&self.set, &ute, u, &s0, &r, z, &model.assoc, lm) {
+                    Some(a) => self.forced.push(a),
+                    None => {
+                        self.forced.clear();
+                        break;
+                    }
+                }
+            }
+        }
         let motion_norm = -(0..3).map(|i| noise.chol[(i, i)].ln()).sum::<f64>();
         let (it, tol) = (self.newton.max_iter, self.newton.tol);
         let bad = |what| LocalizationError::NonFinite { what, step };
@@ -333,6 +348,10 @@ impl SlamFilter for ImplicitRefineSlam {
 
     fn map(&self) -> Vec<Point> {
         self.set.maps[self.set.best()].iter().map(|l| l.m).collect()
+    }
+
+    fn set_shared_association(&mut self, on: bool) {
+        self.shared = on;
     }
 
     fn force_association(&mut self, a: &[Association]) {

@@ -39,6 +39,7 @@ pub mod refine;
 #[cfg(test)]
 mod refine_tests;
 pub mod refined_map;
+pub mod shared_assoc;
 #[cfg(test)]
 mod tests;
 
@@ -139,6 +140,9 @@ pub trait SlamFilter {
     /// Impose the association of the next step's returns, one per return,
     /// in place of the ML rule (the known-association ablation).
     fn force_association(&mut self, a: &[assoc::Association]);
+    /// Particle filters: associate each return once for the whole set
+    /// ([`shared_assoc`]) instead of once per particle; from the next reset.
+    fn set_shared_association(&mut self, _on: bool) {}
     /// √(trace of the position covariance) of the current belief (m).
     fn position_spread(&self) -> f64;
     /// Particle filters: label every particle by its index in slot `slot`
