@@ -20,7 +20,7 @@
 
 use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::particles::SlamParticles;
-use super::shared_assoc::shared_association;
+use super::step_setup::{begin_step, Begin, FilterParts, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -161,29 +161,29 @@ impl SlamFilter for FastSlam {
         obs: &[RangeBearing],
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
-        self.step += 1;
-        let step = self.step;
-        let (ute, noise) = self.model.step_noise(u, dt)?;
-        if obs.is_empty() {
-            return Ok(self.set.predict_only(&ute, &noise, u, rng));
-        }
-        self.stats.updates += 1;
-        let model = self.model;
-        let r = model.r();
-        let log_new = model.log_new_density();
-        let s0 = noise.chol * noise.chol.transpose();
-        if self.shared && self.forced.is_empty() {
-            for z in obs {
-                let lm = |l: &Landmark| ([l.m[0], l.m[1]], l.p);
-                match shared_association(&self.set, &ute, u, &s0, &r, z, &model.assoc, lm) {
-                    Some(a) => self.forced.push(a),
-                    None => {
-                        self.forced.clear();
-                        break;
-                    }
-                }
-            }
-        }
+        let parts = FilterParts {
+            model: &self.model,
+            set: &mut self.set,
+            step: &mut self.step,
+            stats: &mut self.stats,
+            forced: &mut self.forced,
+            shared: self.shared,
+        };
+        let StepSetup {
+            step,
+            ute,
+            noise,
+            model,
+            r,
+            log_new,
+            s0,
+            ..
+        } = match begin_step(parts, u, dt, obs, rng, |l: &Landmark| {
+            ([l.m[0], l.m[1]], l.p)
+        })? {
+            Begin::Predicted(estimate) => return Ok(estimate),
+            Begin::Update(c) => c,
+        };
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
             let x = self.set.x[j];

@@ -33,7 +33,7 @@ use super::joint::JointObjective;
 use super::particles::SlamParticles;
 use super::refine::{backward_term, Objective};
 use super::refined_map::{Past, RefinedLandmark};
-use super::shared_assoc::shared_association;
+use super::step_setup::{begin_step, Begin, FilterParts, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -163,33 +163,30 @@ impl SlamFilter for ImplicitRefineSlam {
         obs: &[RangeBearing],
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
-        self.step += 1;
-        let step = self.step;
-        let (ute, noise) = self.model.step_noise(u, dt)?;
-        if obs.is_empty() {
-            return Ok(self.set.predict_only(&ute, &noise, u, rng));
-        }
-        self.stats.updates += 1;
-        let model = self.model;
-        let r = model.r();
+        let parts = FilterParts {
+            model: &self.model,
+            set: &mut self.set,
+            step: &mut self.step,
+            stats: &mut self.stats,
+            forced: &mut self.forced,
+            shared: self.shared,
+        };
+        let StepSetup {
+            step,
+            ute,
+            noise,
+            model,
+            r,
+            half_logdet_r,
+            ln2pi,
+            log_new,
+            motion_norm,
+            s0,
+        } = match begin_step(parts, u, dt, obs, rng, |l: &RefinedLandmark| (l.m, l.cov))? {
+            Begin::Predicted(estimate) => return Ok(estimate),
+            Begin::Update(c) => c,
+        };
         let rinv = Matrix2::new(1.0 / r[(0, 0)], 0.0, 0.0, 1.0 / r[(1, 1)]);
-        let half_logdet_r = 0.5 * (r[(0, 0)] * r[(1, 1)]).ln();
-        let ln2pi = (2.0 * std::f64::consts::PI).ln();
-        let log_new = model.log_new_density();
-        let s0 = noise.chol * noise.chol.transpose();
-        if self.shared && self.forced.is_empty() {
-            for z in obs {
-                let lm = |l: &RefinedLandmark| (l.m, l.cov);
-                match shared_association(&self.set, &ute, u, &s0, &r, z, &model.assoc, lm) {
-                    Some(a) => self.forced.push(a),
-                    None => {
-                        self.forced.clear();
-                        break;
-                    }
-                }
-            }
-        }
-        let motion_norm = -(0..3).map(|i| noise.chol[(i, i)].ln()).sum::<f64>();
         let (it, tol) = (self.newton.max_iter, self.newton.tol);
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {

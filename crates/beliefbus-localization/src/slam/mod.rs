@@ -40,6 +40,7 @@ pub mod refine;
 mod refine_tests;
 pub mod refined_map;
 pub mod shared_assoc;
+pub mod step_setup;
 #[cfg(test)]
 mod tests;
 
