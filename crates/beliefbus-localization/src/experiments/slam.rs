@@ -22,6 +22,12 @@
 //! reading (`noise_reading=variance`), against the paper's 3.89 %; the σ
 //! reading is also the one where 0.05π/180 means what it looks like, 0.05°.
 //!
+//! Association (`association`): the ML rule once per particle (default),
+//! once per return for the whole set (`shared`, [`crate::slam::shared_assoc`])
+//! or the truth (`known`, an ablation). The diagnostics columns (ancestors
+//! alive, resampling rate, the belief's spread) are described in
+//! [`super::slam_run`].
+//!
 //! Error of a run: ‖p̂ − p‖ / ‖p‖ in % over the laser positions at every
 //! odometry step (as Table 5; the paper does not say whether map error is
 //! included, ours is the path only); time per update: the filter's time
