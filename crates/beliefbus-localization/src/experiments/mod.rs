@@ -8,6 +8,7 @@ pub mod slam;
 pub mod slam_acceptance;
 pub mod slam_noise;
 pub mod slam_plot;
+pub mod slam_run;
 pub mod slam_svg;
 pub mod slam_victoria;
 pub mod slam_vp_data;

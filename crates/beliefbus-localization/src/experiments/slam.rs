@@ -22,6 +22,12 @@
 //! reading (`noise_reading=variance`), against the paper's 3.89 %; the σ
 //! reading is also the one where 0.05π/180 means what it looks like, 0.05°.
 //!
+//! Association (`association`): the ML rule once per particle (default),
+//! once per return for the whole set (`shared`, [`crate::slam::shared_assoc`])
+//! or the truth (`known`, an ablation). The diagnostics columns (ancestors
+//! alive, resampling rate, the belief's spread) are described in
+//! [`super::slam_run`].
+//!
 //! Error of a run: ‖p̂ − p‖ / ‖p‖ in % over the laser positions at every
 //! odometry step (as Table 5; the paper does not say whether map error is
 //! included, ours is the path only); time per update: the filter's time
@@ -29,8 +35,9 @@
 
 use super::params::{mean_se, Params};
 pub use super::slam_acceptance::acceptance;
-use super::slam_noise::{map_error, NoiseReading};
+use super::slam_noise::NoiseReading;
 use super::slam_plot::{write_paths, write_plot, PathMap};
+use super::slam_run::run_one;
 use super::{Report, Row};
 use crate::carpark::{CarPark, CarParkConfig};
 use crate::error::LocalizationError;
@@ -38,18 +45,12 @@ use crate::geometry::Pose;
 use crate::laser::LaserNoise;
 use crate::mcl::newton::NewtonSettings;
 use crate::slam::assoc::AssocConfig;
-use crate::slam::driver::{pick_one_per_scan, run_carpark, trajectory_error_pct};
-use crate::slam::ekf::EkfSlam;
-use crate::slam::fastslam::{FastSlam, Version};
-use crate::slam::implicit::ImplicitSlam;
-use crate::slam::implicit_rb::ImplicitRbSlam;
-use crate::slam::implicit_refine::ImplicitRefineSlam;
-use crate::slam::{SlamFilter, SlamModel};
+use crate::slam::driver::pick_one_per_scan;
+use crate::slam::SlamModel;
 use crate::vehicle::MotionNoise;
 use crate::victoria;
 use beliefbus_core::experiment_params::{p, ParamDoc};
 use beliefbus_core::rng::stream;
-use std::time::Instant;
 
 /// The documented parameters.
 pub const PARAMS: &[ParamDoc] = &[
@@ -162,6 +163,21 @@ pub const PARAMS: &[ParamDoc] = &[
     ),
     p("newton_tol", "0.001", "Newton decrement tolerance"),
     p(
+        "dead_reckoning",
+        "0",
+        "1: add a 'dead-reckoning' row (EKF-SLAM handed no return: the noise-free prediction from the controls)",
+    ),
+    p(
+        "association",
+        "ml",
+        "'ml': the shared maximum-likelihood rule, once per particle; 'shared': once per return for the whole particle set (slam::shared_assoc); 'known': every filter is handed the true association (ablation)",
+    ),
+    p(
+        "per_run",
+        "(none)",
+        "write each data set's error_pct, rms_m and spread_m per method to this CSV (for paired comparisons)",
+    ),
+    p(
         "plot",
         "(none)",
         "write an SVG of time per update against error (ours and the paper's) here, and one of data set 0's paths and maps beside it (<name>-paths.svg)",
@@ -227,6 +243,10 @@ pub struct Setup {
     pub newton: NewtonSettings,
     pub methods: Vec<(&'static str, usize)>,
     pub plot: Option<String>,
+    /// How the filters associate returns.
+    pub assoc: AssocMode,
+    /// Write each data set's figures per method here (CSV).
+    pub per_run: Option<String>,
 }
 
 /// Parse the parameters.
@@ -316,6 +336,9 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
         methods.push(("implicit-rb", m));
     }
     methods.push(("ekf", 1));
+    if ps.get("dead_reckoning", 0usize)? == 1 {
+        methods.push(("dead-reckoning", 1));
+    }
     let plot = ps.raw("plot").map(str::to_string);
     Ok(Setup {
         reading,
@@ -330,40 +353,12 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
         },
         methods,
         plot,
+        assoc: AssocMode::parse(ps.raw("association").unwrap_or("ml"))?,
+        per_run: ps.raw("per_run").map(str::to_string),
     })
 }
 
-/// A filter by name and sample size.
-pub fn make_filter(
-    name: &str,
-    m: usize,
-    model: SlamModel,
-    ess: f64,
-    newton: NewtonSettings,
-) -> Result<Box<dyn SlamFilter>, LocalizationError> {
-    Ok(match name {
-        "implicit" => Box::new(ImplicitSlam::new(model, m, ess, newton)?),
-        "implicit-rb" => Box::new(ImplicitRbSlam::new(model, m, ess, newton)?),
-        "implicit-refine" => Box::new(ImplicitRefineSlam::new(model, m, ess, newton)?),
-        "fastslam1" => Box::new(FastSlam::new(model, Version::One, m, ess)?),
-        "fastslam2" => Box::new(FastSlam::new(model, Version::Two, m, ess)?),
-        _ => Box::new(EkfSlam::new(model)?),
-    })
-}
-
-/// Figures of one filter run.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RunMetrics {
-    pub error_pct: f64,
-    pub rms_m: f64,
-    pub time_ms: f64,
-    pub time_s: f64,
-    pub ess_fraction: f64,
-    /// Landmarks in the estimate's map per landmark truly seen.
-    pub map_ratio: f64,
-    /// Mean distance of the estimate's landmarks to the nearest true one (m).
-    pub map_err_m: f64,
-}
+pub use super::slam_run::{make_filter, AssocMode, RunMetrics};
 
 /// `slam`: Table 6 with `runs` data sets (default 50, the paper's).
 pub fn run(
@@ -405,6 +400,7 @@ pub fn run(
             }
         })
         .collect();
+    let mut per_run = String::from("method,samples,run,error_pct,rms_m,spread_m\n");
     let mut first: Option<(Vec<Pose>, Vec<crate::geometry::Point>, Vec<PathMap>)> = None;
     for r in 0..runs as u64 {
         let cp = CarPark::generate(&rec, &s.carpark, &mut stream(seed, r))?;
@@ -420,37 +416,33 @@ pub fn run(
             let mut f = make_filter(name, m, s.model, s.ess_threshold, s.newton)?;
             let mut est = vec![Pose::zeros(); cp.steps() + 1];
             let mut rng = stream(seed, 1_000_000 + r);
-            let t0 = Instant::now();
-            run_carpark(f.as_mut(), &cp, &picks, &mut rng, |n, e| est[n] = *e)?;
-            let time_s = t0.elapsed().as_secs_f64();
-            let n = cp.steps() as f64;
-            let se: f64 = cp
-                .truth
-                .iter()
-                .zip(&est)
-                .skip(1)
-                .map(|(t, e)| (e[0] - t[0]).powi(2) + (e[1] - t[1]).powi(2))
-                .sum();
-            let st = f.stats();
-            let map = f.map();
+            let (met, map) = run_one(
+                f.as_mut(),
+                &cp,
+                if name == "dead-reckoning" {
+                    &[]
+                } else {
+                    &picks
+                },
+                seen.len(),
+                &mut rng,
+                s.assoc,
+                &mut est,
+            )?;
             if r == 0 && s.plot.is_some() && shown.contains(&i) {
                 let fig = first
                     .get_or_insert_with(|| (cp.truth.clone(), cp.landmarks.clone(), Vec::new()));
                 fig.2.push(PathMap {
                     name: format!("{name} (M = {m})"),
                     path: est.clone(),
-                    map: map.clone(),
+                    map,
                 });
             }
-            per[i].push(RunMetrics {
-                map_err_m: map_error(&map, &cp.landmarks),
-                error_pct: trajectory_error_pct(&cp.truth, &est),
-                rms_m: (se / n).sqrt(),
-                time_ms: 1e3 * time_s / n,
-                time_s,
-                ess_fraction: st.ess_fraction_sum / st.updates.max(1) as f64,
-                map_ratio: map.len() as f64 / seen.len().max(1) as f64,
-            });
+            per_run.push_str(&format!(
+                "{name},{m},{r},{},{},{}\n",
+                met.error_pct, met.rms_m, met.spread_m
+            ));
+            per[i].push(met);
         }
     }
     let mut rep = Report::new("slam");
@@ -496,6 +488,12 @@ pub fn run(
         let (ess, _) = col(|x| x.ess_fraction);
         let (mr, _) = col(|x| x.map_ratio);
         let (me, _) = col(|x| x.map_err_m);
+        let (rr, _) = col(|x| x.resample_rate);
+        let (sp, _) = col(|x| x.spread_m);
+        let anc = |k: usize| -> f64 {
+            let v: Vec<f64> = per[i].iter().map(|x| x.ancestors[k]).collect();
+            mean_se(&v).0
+        };
         rep.results.push(
             Row::new(name)
                 .int("samples", m as u64)
@@ -508,6 +506,12 @@ pub fn run(
                 .num("ess_fraction", ess)
                 .num("map_per_seen", mr)
                 .num("map_err_m", me)
+                .num("resample_rate", rr)
+                .num("spread_m", sp)
+                .num("ancestors_start", anc(0))
+                .num("ancestors_mid", anc(1))
+                .num("ancestors_10s", anc(2))
+                .num("ancestors_1s", anc(3))
                 .num("time_s", ts),
         );
     }
@@ -541,6 +545,13 @@ pub fn run(
     rep.notes.push(
         "times are wall-clock on a shared 2-core machine under load from other builds".into(),
     );
+    rep.param("association_given", s.assoc.name());
+    if let Some(path) = &s.per_run {
+        std::fs::write(path, &per_run).map_err(|e| LocalizationError::Param {
+            key: "per_run".into(),
+            msg: format!("{path}: {e}"),
+        })?;
+    }
     if let Some(path) = &s.plot {
         write_plot(path, &rep)?;
         rep.notes.push(format!("plot: {path}"));

@@ -55,6 +55,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p("assoc_radius", "5", "pre-filter radius of the association (m)"),
     p("gps_max_speed", "10", "drop a GPS fix implying a higher speed (m/s) from the last kept one"),
     p("ess_threshold", "0.5", "resample when ESS < this fraction of the samples"),
+    p("association", "ml", "'ml': the ML rule once per particle; 'shared': once per return for the whole particle set (slam::shared_assoc)"),
     p("plot", "(none)", "write an SVG of each method's path and map over GPS and dead reckoning here"),
 ];
 
@@ -161,6 +162,16 @@ pub fn run(
     model.validate()?;
     let gps_max_speed: f64 = ps.get("gps_max_speed", 10.0)?;
     let ess: f64 = ps.get("ess_threshold", 0.5)?;
+    let shared = match super::slam_run::AssocMode::parse(ps.raw("association").unwrap_or("ml"))? {
+        super::slam_run::AssocMode::PerParticle => false,
+        super::slam_run::AssocMode::Shared => true,
+        super::slam_run::AssocMode::Known => {
+            return Err(LocalizationError::Param {
+                key: "association".into(),
+                msg: "the real run has no known association: 'ml' or 'shared'".into(),
+            })
+        }
+    };
     let plot = ps.raw("plot").map(str::to_string);
     let runs = runs.unwrap_or(1).max(1);
 
@@ -225,6 +236,7 @@ pub fn run(
         dr[k] = ute.predict_mean(&dr[k - 1], controls[k - 1]);
     }
     let mut rep = Report::new("slam-victoria-park");
+    rep.param("association_given", if shared { "shared" } else { "ml" });
     rep.lead_columns(&["samples", "rms_m", "p95_m", "landmarks", "time_ms"]);
     let (dr_rms, dr_p95) = rms_p95(&gps_errors(&times, &dr, &gps));
     rep.results.push(
@@ -250,6 +262,7 @@ pub fn run(
             let mut figs: Vec<Figures> = Vec::with_capacity(reps);
             for r in 0..reps as u64 {
                 let mut f = make_filter(name, m, model, ess, NewtonSettings::default())?;
+                f.set_shared_association(shared);
                 f.reset(&start);
                 let mut rng = stream(seed, r);
                 let mut path = vec![start; times.len()];
@@ -285,6 +298,10 @@ pub fn run(
                 Row::new(name)
                     .int("samples", m as u64)
                     .num("rms_m", avg(|x| x.0))
+                    .num("rms_m_se", {
+                        let v: Vec<f64> = figs.iter().map(|x| x.0).collect();
+                        super::params::mean_se(&v).1
+                    })
                     .num("p95_m", avg(|x| x.1))
                     .num("landmarks", avg(|x| x.2))
                     .num("time_ms", avg(|x| x.3))

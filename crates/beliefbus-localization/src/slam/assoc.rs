@@ -146,6 +146,46 @@ impl Chooser {
     }
 }
 
+/// Associations imposed from outside instead of the ML rule (the
+/// known-association ablation): one per return of the next step, cleared
+/// by the step. A `Known(k)` that a map does not hold is not imposed.
+#[derive(Clone, Debug, Default)]
+pub struct Forced(Vec<Association>);
+
+impl Forced {
+    pub fn with_capacity(n: usize) -> Self {
+        Self(Vec::with_capacity(n))
+    }
+
+    /// Impose `a` on the next step's returns.
+    pub fn set(&mut self, a: &[Association]) {
+        self.0.clear();
+        self.0.extend_from_slice(a);
+    }
+
+    pub fn clear(&mut self) {
+        self.0.clear();
+    }
+
+    /// Impose `a` on the next return in order.
+    pub fn push(&mut self, a: Association) {
+        self.0.push(a);
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// The imposed association of return `i` against a map of `len`
+    /// landmarks, if any.
+    pub fn get(&self, i: usize, len: usize) -> Option<Association> {
+        match self.0.get(i).copied()? {
+            Association::Known(k) if k >= len => None,
+            a => Some(a),
+        }
+    }
+}
+
 /// Whether landmark m is close enough to the return's point to be scored.
 pub fn near(m: Point, zp: Point, cfg: &AssocConfig) -> bool {
     (m[0] - zp[0]).powi(2) + (m[1] - zp[1]).powi(2) <= cfg.radius * cfg.radius
@@ -156,6 +196,23 @@ mod tests {
     use super::*;
     use crate::laser::predict;
     use nalgebra::Matrix3;
+
+    #[test]
+    fn forced_associations_apply_only_to_landmarks_the_map_holds() {
+        let mut f = Forced::with_capacity(4);
+        assert_eq!(f.get(0, 3), None);
+        f.set(&[
+            Association::Known(2),
+            Association::New,
+            Association::Known(5),
+        ]);
+        assert_eq!(f.get(0, 3), Some(Association::Known(2)));
+        assert_eq!(f.get(1, 3), Some(Association::New));
+        assert_eq!(f.get(2, 3), None);
+        assert_eq!(f.get(3, 3), None);
+        f.clear();
+        assert_eq!(f.get(0, 3), None);
+    }
 
     #[test]
     fn jacobians_match_finite_differences_and_inverse_inverts() {

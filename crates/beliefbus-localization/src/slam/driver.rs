@@ -4,7 +4,7 @@
 //! random"), without its identity; the filter steps once per odometry
 //! sample with the step's own length.
 
-use super::assoc::RangeBearing;
+use super::assoc::{Association, RangeBearing};
 use super::SlamFilter;
 use crate::carpark::CarPark;
 use crate::error::LocalizationError;
@@ -49,15 +49,61 @@ pub fn run_carpark(
     rng: &mut SimRng,
     mut each: impl FnMut(usize, &Pose),
 ) -> Result<(), LocalizationError> {
+    run_carpark_with(filter, cp, picks, rng, &RunOptions::default(), |n, e, _| {
+        each(n, e)
+    })
+}
+
+/// Ablations and diagnostics of a run.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RunOptions {
+    /// Hand every filter the true association (the landmark's index in the
+    /// order of first sighting, the same in every particle's map) instead
+    /// of the ML rule.
+    pub known_association: bool,
+    /// Particle filters associate each return once for the whole set
+    /// ([`super::shared_assoc`]) instead of once per particle.
+    pub shared_association: bool,
+    /// `(step, slot)`: label the particles' ancestors in `slot` just after
+    /// step `step` ([`SlamFilter::mark_ancestors`]).
+    pub marks: Vec<(usize, usize)>,
+}
+
+/// [`run_carpark`] with options; `each(n, estimate, filter)` after every step.
+pub fn run_carpark_with(
+    filter: &mut dyn SlamFilter,
+    cp: &CarPark,
+    picks: &[Pick],
+    rng: &mut SimRng,
+    opt: &RunOptions,
+    mut each: impl FnMut(usize, &Pose, &dyn SlamFilter),
+) -> Result<(), LocalizationError> {
+    filter.set_shared_association(opt.shared_association);
     filter.reset(&cp.truth[0]);
+    let mut order: Vec<usize> = Vec::new();
     let mut it = picks.iter().peekable();
     for n in 1..=cp.steps() {
         let dt = cp.times[n] - cp.times[n - 1];
         let est = match it.next_if(|p| p.step == n) {
-            Some(p) => filter.step(cp.controls[n - 1], dt, std::slice::from_ref(&p.z), rng)?,
+            Some(p) => {
+                if opt.known_association {
+                    let a = match order.iter().position(|&l| l == p.landmark) {
+                        Some(k) => Association::Known(k),
+                        None => {
+                            order.push(p.landmark);
+                            Association::New
+                        }
+                    };
+                    filter.force_association(&[a]);
+                }
+                filter.step(cp.controls[n - 1], dt, std::slice::from_ref(&p.z), rng)?
+            }
             None => filter.step(cp.controls[n - 1], dt, &[], rng)?,
         };
-        each(n, &est);
+        for &(_, slot) in opt.marks.iter().filter(|m| m.0 == n) {
+            filter.mark_ancestors(slot);
+        }
+        each(n, &est, filter);
     }
     Ok(())
 }

@@ -16,7 +16,7 @@
 //! buffer with a capacity that doubles as landmarks are added (amortised
 //! allocation; none in a step that adds no landmark).
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::error::LocalizationError;
 use crate::geometry::{frame_rotation, wrap_angle, Point, Pose};
@@ -260,6 +260,7 @@ pub struct EkfSlam {
     stats: SlamStats,
     step: usize,
     assoc: Vec<Association>,
+    forced: Forced,
 }
 
 impl EkfSlam {
@@ -271,6 +272,7 @@ impl EkfSlam {
             stats: SlamStats::default(),
             step: 0,
             assoc: Vec::with_capacity(32),
+            forced: Forced::with_capacity(32),
         })
     }
 }
@@ -284,6 +286,7 @@ impl SlamFilter for EkfSlam {
         self.state.reset(start, &Matrix3::zeros());
         self.stats = SlamStats::default();
         self.step = 0;
+        self.forced.clear();
     }
 
     fn step(
@@ -310,7 +313,7 @@ impl SlamFilter for EkfSlam {
         let model = self.model;
         let r = model.r();
         self.assoc.clear();
-        for z in obs {
+        for (i, z) in obs.iter().enumerate() {
             let (zp, _, _) = inverse(&f, z);
             let mut ch = Chooser::new();
             for k in 0..self.state.landmarks() {
@@ -321,8 +324,13 @@ impl SlamFilter for EkfSlam {
                     ch.offer(k, &nu, &s, &model.assoc);
                 }
             }
-            self.assoc.push(ch.decide(&model.assoc));
+            self.assoc.push(
+                self.forced
+                    .get(i, self.state.landmarks())
+                    .unwrap_or_else(|| ch.decide(&model.assoc)),
+            );
         }
+        self.forced.clear();
         for (z, a) in obs.iter().zip(&self.assoc) {
             let x = self.state.pose();
             match *a {
@@ -355,6 +363,15 @@ impl SlamFilter for EkfSlam {
         (0..self.state.landmarks())
             .map(|k| self.state.landmark(k))
             .collect()
+    }
+
+    fn force_association(&mut self, a: &[Association]) {
+        self.forced.set(a);
+    }
+
+    fn position_spread(&self) -> f64 {
+        let p = self.state.pose_cov();
+        (p[(0, 0)] + p[(1, 1)]).max(0.0).sqrt()
     }
 
     fn stats(&self) -> SlamStats {

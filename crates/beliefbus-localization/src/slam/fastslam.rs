@@ -18,8 +18,9 @@
 //! S = H_x Σ₁ H_xᵀ + H_m P H_mᵀ + Σ₂. Particles' maps share blocks
 //! ([`super::map`]) so resampling copies are cheap.
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::particles::SlamParticles;
+use super::step_setup::{begin_step, Begin, FilterParts, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -113,6 +114,8 @@ pub struct FastSlam {
     stats: SlamStats,
     step: usize,
     assoc: Vec<Association>,
+    forced: Forced,
+    shared: bool,
 }
 
 impl FastSlam {
@@ -130,6 +133,8 @@ impl FastSlam {
             stats: SlamStats::default(),
             step: 0,
             assoc: Vec::with_capacity(32),
+            forced: Forced::with_capacity(32),
+            shared: false,
         })
     }
 }
@@ -146,6 +151,7 @@ impl SlamFilter for FastSlam {
         self.set.reset(start);
         self.stats = SlamStats::default();
         self.step = 0;
+        self.forced.clear();
     }
 
     fn step(
@@ -155,17 +161,29 @@ impl SlamFilter for FastSlam {
         obs: &[RangeBearing],
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
-        self.step += 1;
-        let step = self.step;
-        let (ute, noise) = self.model.step_noise(u, dt)?;
-        if obs.is_empty() {
-            return Ok(self.set.predict_only(&ute, &noise, u, rng));
-        }
-        self.stats.updates += 1;
-        let model = self.model;
-        let r = model.r();
-        let log_new = model.log_new_density();
-        let s0 = noise.chol * noise.chol.transpose();
+        let parts = FilterParts {
+            model: &self.model,
+            set: &mut self.set,
+            step: &mut self.step,
+            stats: &mut self.stats,
+            forced: &mut self.forced,
+            shared: self.shared,
+        };
+        let StepSetup {
+            step,
+            ute,
+            noise,
+            model,
+            r,
+            log_new,
+            s0,
+            ..
+        } = match begin_step(parts, u, dt, obs, rng, |l: &Landmark| {
+            ([l.m[0], l.m[1]], l.p)
+        })? {
+            Begin::Predicted(estimate) => return Ok(estimate),
+            Begin::Update(c) => c,
+        };
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
             let x = self.set.x[j];
@@ -174,7 +192,7 @@ impl SlamFilter for FastSlam {
             let sx = t * s0 * t.transpose();
             self.assoc.clear();
             let map = &self.set.maps[j];
-            for z in obs {
+            for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
                 let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
@@ -185,7 +203,11 @@ impl SlamFilter for FastSlam {
                         ch.offer(k, &nu, &s, &model.assoc);
                     }
                 }
-                self.assoc.push(ch.decide(&model.assoc));
+                self.assoc.push(
+                    self.forced
+                        .get(i, map.len())
+                        .unwrap_or_else(|| ch.decide(&model.assoc)),
+                );
             }
             let mut lw = 0.0;
             let xi = normal3(rng);
@@ -242,6 +264,7 @@ impl SlamFilter for FastSlam {
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
         }
+        self.forced.clear();
         self.set.reweight(step, rng)?;
         Ok(self.set.estimate())
     }
@@ -251,6 +274,26 @@ impl SlamFilter for FastSlam {
             .iter()
             .map(|l| [l.m[0], l.m[1]])
             .collect()
+    }
+
+    fn set_shared_association(&mut self, on: bool) {
+        self.shared = on;
+    }
+
+    fn force_association(&mut self, a: &[Association]) {
+        self.forced.set(a);
+    }
+
+    fn position_spread(&self) -> f64 {
+        self.set.position_spread()
+    }
+
+    fn mark_ancestors(&mut self, slot: usize) {
+        self.set.mark_ancestors(slot);
+    }
+
+    fn distinct_ancestors(&self, slot: usize) -> Option<usize> {
+        Some(self.set.distinct_ancestors(slot))
     }
 
     fn stats(&self) -> SlamStats {

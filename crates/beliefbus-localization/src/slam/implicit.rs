@@ -30,9 +30,10 @@
 //! [`super::implicit_refine`], which redraws the re-observed feature from
 //! all of the particle's sightings of it (docs/slam.md has the figures).
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::joint::{minimise_joint, JointObjective};
 use super::particles::SlamParticles;
+use super::step_setup::{begin_step, Begin, FilterParts, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -65,6 +66,8 @@ pub struct ImplicitSlam {
     known_obs: Vec<Observation>,
     known_map: Vec<Point>,
     new_obs: Vec<RangeBearing>,
+    forced: Forced,
+    shared: bool,
 }
 
 impl ImplicitSlam {
@@ -84,6 +87,8 @@ impl ImplicitSlam {
             known_obs: Vec::with_capacity(32),
             known_map: Vec::with_capacity(32),
             new_obs: Vec::with_capacity(32),
+            forced: Forced::with_capacity(32),
+            shared: false,
         })
     }
 }
@@ -131,6 +136,7 @@ impl SlamFilter for ImplicitSlam {
         self.set.reset(start);
         self.stats = SlamStats::default();
         self.step = 0;
+        self.forced.clear();
     }
 
     fn step(
@@ -140,22 +146,29 @@ impl SlamFilter for ImplicitSlam {
         obs: &[RangeBearing],
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
-        self.step += 1;
-        let step = self.step;
-        let (ute, noise) = self.model.step_noise(u, dt)?;
-        if obs.is_empty() {
-            return Ok(self.set.predict_only(&ute, &noise, u, rng));
-        }
-        self.stats.updates += 1;
-        let model = self.model;
-        let r = model.r();
-        let half_logdet_r = 0.5 * (r[(0, 0)] * r[(1, 1)]).ln();
-        let ln2pi = (2.0 * std::f64::consts::PI).ln();
-        let log_new = model.log_new_density();
-        let s0 = noise.chol * noise.chol.transpose();
-        // −½ log det Σ₁: the motion density's normaliser, which the linear
-        // map's weight keeps and a motion-model proposal cancels.
-        let motion_norm = -(0..3).map(|i| noise.chol[(i, i)].ln()).sum::<f64>();
+        let parts = FilterParts {
+            model: &self.model,
+            set: &mut self.set,
+            step: &mut self.step,
+            stats: &mut self.stats,
+            forced: &mut self.forced,
+            shared: self.shared,
+        };
+        let StepSetup {
+            step,
+            ute,
+            noise,
+            model,
+            r,
+            half_logdet_r,
+            ln2pi,
+            log_new,
+            motion_norm,
+            s0,
+        } = match begin_step(parts, u, dt, obs, rng, |l: &SampledLandmark| (l.m, l.cov))? {
+            Begin::Predicted(estimate) => return Ok(estimate),
+            Begin::Update(c) => c,
+        };
         for j in 0..self.set.len() {
             let x = self.set.x[j];
             let f = ute.predict_mean(&x, u);
@@ -167,7 +180,7 @@ impl SlamFilter for ImplicitSlam {
             self.new_obs.clear();
             let mut discarded = 0usize;
             let map = &self.set.maps[j];
-            for z in obs {
+            for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
                 let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
@@ -177,7 +190,11 @@ impl SlamFilter for ImplicitSlam {
                         ch.offer(k, &nu, &s, &model.assoc);
                     }
                 }
-                match ch.decide(&model.assoc) {
+                match self
+                    .forced
+                    .get(i, map.len())
+                    .unwrap_or_else(|| ch.decide(&model.assoc))
+                {
                     Association::Known(k) => {
                         self.known_obs.push(Observation {
                             range: z.range,
@@ -285,12 +302,33 @@ impl SlamFilter for ImplicitSlam {
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
         }
+        self.forced.clear();
         self.set.reweight(step, rng)?;
         Ok(self.set.estimate())
     }
 
     fn map(&self) -> Vec<Point> {
         self.set.maps[self.set.best()].iter().map(|l| l.m).collect()
+    }
+
+    fn set_shared_association(&mut self, on: bool) {
+        self.shared = on;
+    }
+
+    fn force_association(&mut self, a: &[Association]) {
+        self.forced.set(a);
+    }
+
+    fn position_spread(&self) -> f64 {
+        self.set.position_spread()
+    }
+
+    fn mark_ancestors(&mut self, slot: usize) {
+        self.set.mark_ancestors(slot);
+    }
+
+    fn distinct_ancestors(&self, slot: usize) -> Option<usize> {
+        Some(self.set.distinct_ancestors(slot))
     }
 
     fn stats(&self) -> SlamStats {

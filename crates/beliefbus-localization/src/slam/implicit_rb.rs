@@ -18,9 +18,10 @@
 //! criticises" in θ); kept as a comparison for reading (i), whose map is
 //! sampled once and never refined.
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::fastslam::{init_landmark, update_landmark, Landmark};
 use super::particles::SlamParticles;
+use super::step_setup::{begin_step, Begin, FilterParts, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -67,6 +68,8 @@ pub struct ImplicitRbSlam {
     stats: SlamStats,
     step: usize,
     assoc: Vec<Association>,
+    forced: Forced,
+    shared: bool,
     terms: Vec<Term>,
 }
 
@@ -85,6 +88,8 @@ impl ImplicitRbSlam {
             stats: SlamStats::default(),
             step: 0,
             assoc: Vec::with_capacity(32),
+            forced: Forced::with_capacity(32),
+            shared: false,
             terms: Vec::with_capacity(32),
         })
     }
@@ -170,6 +175,7 @@ impl SlamFilter for ImplicitRbSlam {
         self.set.reset(start);
         self.stats = SlamStats::default();
         self.step = 0;
+        self.forced.clear();
     }
 
     fn step(
@@ -179,19 +185,31 @@ impl SlamFilter for ImplicitRbSlam {
         obs: &[RangeBearing],
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
-        self.step += 1;
-        let step = self.step;
-        let (ute, noise) = self.model.step_noise(u, dt)?;
-        if obs.is_empty() {
-            return Ok(self.set.predict_only(&ute, &noise, u, rng));
-        }
-        self.stats.updates += 1;
-        let model = self.model;
-        let r = model.r();
-        let log_new = model.log_new_density();
-        let ln2pi = (2.0 * std::f64::consts::PI).ln();
-        let s0 = noise.chol * noise.chol.transpose();
-        let motion_norm = -(0..3).map(|i| noise.chol[(i, i)].ln()).sum::<f64>();
+        let parts = FilterParts {
+            model: &self.model,
+            set: &mut self.set,
+            step: &mut self.step,
+            stats: &mut self.stats,
+            forced: &mut self.forced,
+            shared: self.shared,
+        };
+        let StepSetup {
+            step,
+            ute,
+            noise,
+            model,
+            r,
+            ln2pi,
+            log_new,
+            motion_norm,
+            s0,
+            ..
+        } = match begin_step(parts, u, dt, obs, rng, |l: &Landmark| {
+            ([l.m[0], l.m[1]], l.p)
+        })? {
+            Begin::Predicted(estimate) => return Ok(estimate),
+            Begin::Update(c) => c,
+        };
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
             let x = self.set.x[j];
@@ -203,7 +221,7 @@ impl SlamFilter for ImplicitRbSlam {
             self.terms.clear();
             let mut lw = 0.0;
             let map = &self.set.maps[j];
-            for z in obs {
+            for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
                 let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
@@ -214,7 +232,10 @@ impl SlamFilter for ImplicitRbSlam {
                         ch.offer(k, &nu, &s, &model.assoc);
                     }
                 }
-                let a = ch.decide(&model.assoc);
+                let a = self
+                    .forced
+                    .get(i, map.len())
+                    .unwrap_or_else(|| ch.decide(&model.assoc));
                 if let Association::Known(k) = a {
                     let lm = map.get(k).expect("k < len");
                     let m = [lm.m[0], lm.m[1]];
@@ -280,6 +301,7 @@ impl SlamFilter for ImplicitRbSlam {
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
         }
+        self.forced.clear();
         self.set.reweight(step, rng)?;
         Ok(self.set.estimate())
     }
@@ -289,6 +311,26 @@ impl SlamFilter for ImplicitRbSlam {
             .iter()
             .map(|l| [l.m[0], l.m[1]])
             .collect()
+    }
+
+    fn set_shared_association(&mut self, on: bool) {
+        self.shared = on;
+    }
+
+    fn force_association(&mut self, a: &[Association]) {
+        self.forced.set(a);
+    }
+
+    fn position_spread(&self) -> f64 {
+        self.set.position_spread()
+    }
+
+    fn mark_ancestors(&mut self, slot: usize) {
+        self.set.mark_ancestors(slot);
+    }
+
+    fn distinct_ancestors(&self, slot: usize) -> Option<usize> {
+        Some(self.set.distinct_ancestors(slot))
     }
 
     fn stats(&self) -> SlamStats {

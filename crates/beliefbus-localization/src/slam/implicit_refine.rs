@@ -27,12 +27,13 @@
 //! counted.
 
 use super::arrow::Arrow;
-use super::assoc::{inverse, near, Association, Chooser, RangeBearing};
+use super::assoc::{inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::implicit::sample_given_pose;
 use super::joint::JointObjective;
 use super::particles::SlamParticles;
 use super::refine::{backward_term, Objective};
 use super::refined_map::{Past, RefinedLandmark};
+use super::step_setup::{begin_step, Begin, FilterParts, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -108,6 +109,8 @@ pub struct ImplicitRefineSlam {
     arrow: Arrow,
     /// Per return: its association.
     assoc: Vec<Association>,
+    forced: Forced,
+    shared: bool,
     /// Per block of the arrow: the landmark index (None: new).
     block_lm: Vec<Option<usize>>,
     zs: Vec<RangeBearing>,
@@ -131,6 +134,8 @@ impl ImplicitRefineSlam {
             step: 0,
             arrow: Arrow::default(),
             assoc: Vec::with_capacity(32),
+            forced: Forced::with_capacity(32),
+            shared: false,
             block_lm: Vec::with_capacity(32),
             zs: Vec::with_capacity(32),
             xi_t: Vec::with_capacity(32),
@@ -148,6 +153,7 @@ impl SlamFilter for ImplicitRefineSlam {
         self.set.reset(start);
         self.stats = SlamStats::default();
         self.step = 0;
+        self.forced.clear();
     }
 
     fn step(
@@ -157,21 +163,30 @@ impl SlamFilter for ImplicitRefineSlam {
         obs: &[RangeBearing],
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
-        self.step += 1;
-        let step = self.step;
-        let (ute, noise) = self.model.step_noise(u, dt)?;
-        if obs.is_empty() {
-            return Ok(self.set.predict_only(&ute, &noise, u, rng));
-        }
-        self.stats.updates += 1;
-        let model = self.model;
-        let r = model.r();
+        let parts = FilterParts {
+            model: &self.model,
+            set: &mut self.set,
+            step: &mut self.step,
+            stats: &mut self.stats,
+            forced: &mut self.forced,
+            shared: self.shared,
+        };
+        let StepSetup {
+            step,
+            ute,
+            noise,
+            model,
+            r,
+            half_logdet_r,
+            ln2pi,
+            log_new,
+            motion_norm,
+            s0,
+        } = match begin_step(parts, u, dt, obs, rng, |l: &RefinedLandmark| (l.m, l.cov))? {
+            Begin::Predicted(estimate) => return Ok(estimate),
+            Begin::Update(c) => c,
+        };
         let rinv = Matrix2::new(1.0 / r[(0, 0)], 0.0, 0.0, 1.0 / r[(1, 1)]);
-        let half_logdet_r = 0.5 * (r[(0, 0)] * r[(1, 1)]).ln();
-        let ln2pi = (2.0 * std::f64::consts::PI).ln();
-        let log_new = model.log_new_density();
-        let s0 = noise.chol * noise.chol.transpose();
-        let motion_norm = -(0..3).map(|i| noise.chol[(i, i)].ln()).sum::<f64>();
         let (it, tol) = (self.newton.max_iter, self.newton.tol);
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
@@ -182,7 +197,7 @@ impl SlamFilter for ImplicitRefineSlam {
             let prec = noise.precision(x[2]);
             self.assoc.clear();
             let map = &self.set.maps[j];
-            for z in obs {
+            for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
                 let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
@@ -192,7 +207,11 @@ impl SlamFilter for ImplicitRefineSlam {
                         ch.offer(k, &nu, &s, &model.assoc);
                     }
                 }
-                self.assoc.push(ch.decide(&model.assoc));
+                self.assoc.push(
+                    self.forced
+                        .get(i, map.len())
+                        .unwrap_or_else(|| ch.decide(&model.assoc)),
+                );
             }
             // One block per distinct known landmark (all its returns), one
             // per new return.
@@ -319,12 +338,33 @@ impl SlamFilter for ImplicitRefineSlam {
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
         }
+        self.forced.clear();
         self.set.reweight(step, rng)?;
         Ok(self.set.estimate())
     }
 
     fn map(&self) -> Vec<Point> {
         self.set.maps[self.set.best()].iter().map(|l| l.m).collect()
+    }
+
+    fn set_shared_association(&mut self, on: bool) {
+        self.shared = on;
+    }
+
+    fn force_association(&mut self, a: &[Association]) {
+        self.forced.set(a);
+    }
+
+    fn position_spread(&self) -> f64 {
+        self.set.position_spread()
+    }
+
+    fn mark_ancestors(&mut self, slot: usize) {
+        self.set.mark_ancestors(slot);
+    }
+
+    fn distinct_ancestors(&self, slot: usize) -> Option<usize> {
+        Some(self.set.distinct_ancestors(slot))
     }
 
     fn stats(&self) -> SlamStats {

@@ -24,6 +24,8 @@ pub mod arrow;
 #[cfg(test)]
 mod arrow_tests;
 pub mod assoc;
+#[cfg(test)]
+mod diag_tests;
 pub mod driver;
 pub mod ekf;
 pub mod fastslam;
@@ -37,6 +39,8 @@ pub mod refine;
 #[cfg(test)]
 mod refine_tests;
 pub mod refined_map;
+pub mod shared_assoc;
+pub mod step_setup;
 #[cfg(test)]
 mod tests;
 
@@ -134,4 +138,20 @@ pub trait SlamFilter {
     /// The map estimate (the heaviest particle's map for particle filters).
     fn map(&self) -> Vec<Point>;
     fn stats(&self) -> SlamStats;
+    /// Impose the association of the next step's returns, one per return,
+    /// in place of the ML rule (the known-association ablation).
+    fn force_association(&mut self, a: &[assoc::Association]);
+    /// Particle filters: associate each return once for the whole set
+    /// ([`shared_assoc`]) instead of once per particle; from the next reset.
+    fn set_shared_association(&mut self, _on: bool) {}
+    /// √(trace of the position covariance) of the current belief (m).
+    fn position_spread(&self) -> f64;
+    /// Particle filters: label every particle by its index in slot `slot`
+    /// ([`particles::SlamParticles::mark_ancestors`]).
+    fn mark_ancestors(&mut self, _slot: usize) {}
+    /// Particle filters: how many particles labelled in slot `slot` still
+    /// have descendants; `None` for a Gaussian filter.
+    fn distinct_ancestors(&self, _slot: usize) -> Option<usize> {
+        None
+    }
 }

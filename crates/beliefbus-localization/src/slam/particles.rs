@@ -4,6 +4,13 @@
 //! maps by sharing their blocks, and the weighted-mean pose estimate.
 //! Buffers are sized once; resampling a map copies block pointers into a
 //! reused buffer.
+//!
+//! For diagnosing path and map depletion each particle also carries
+//! [`LINEAGE_SLOTS`] ancestor labels: [`SlamParticles::mark_ancestors`]
+//! labels every particle by its index at a chosen step, resampling copies
+//! the labels with the particle, and [`SlamParticles::distinct_ancestors`]
+//! counts how many of the particles alive at that step still have
+//! descendants.
 
 use super::map::SharedMap;
 use crate::error::LocalizationError;
@@ -11,6 +18,9 @@ use crate::geometry::Pose;
 use beliefbus_core::filter::resample::systematic;
 use beliefbus_core::math::weights::normalise;
 use beliefbus_core::rng::SimRng;
+
+/// Number of ancestor-label slots per particle.
+pub const LINEAGE_SLOTS: usize = 4;
 
 /// M particles, each a pose and a map of landmarks `L`.
 #[derive(Clone, Debug)]
@@ -22,6 +32,8 @@ pub struct SlamParticles<L: Clone> {
     anc: Vec<usize>,
     tmp_x: Vec<Pose>,
     tmp_maps: Vec<SharedMap<L>>,
+    lineage: Vec<[u32; LINEAGE_SLOTS]>,
+    tmp_lineage: Vec<[u32; LINEAGE_SLOTS]>,
     pub ess_threshold: f64,
     pub updates: usize,
     pub resamplings: usize,
@@ -52,6 +64,8 @@ impl<L: Clone> SlamParticles<L> {
             anc: vec![0; m],
             tmp_x: vec![Pose::zeros(); m],
             tmp_maps: vec![SharedMap::new(); m],
+            lineage: vec![[0; LINEAGE_SLOTS]; m],
+            tmp_lineage: vec![[0; LINEAGE_SLOTS]; m],
             ess_threshold,
             updates: 0,
             resamplings: 0,
@@ -76,6 +90,9 @@ impl<L: Clone> SlamParticles<L> {
         }
         self.logw.fill(0.0);
         self.w.fill(1.0 / m as f64);
+        for slot in 0..LINEAGE_SLOTS {
+            self.mark_ancestors(slot);
+        }
         self.updates = 0;
         self.resamplings = 0;
         self.ess_fraction_sum = 0.0;
@@ -93,7 +110,9 @@ impl<L: Clone> SlamParticles<L> {
             for (k, &a) in self.anc.iter().enumerate() {
                 self.tmp_x[k] = self.x[a];
                 self.tmp_maps[k].share_from(&self.maps[a]);
+                self.tmp_lineage[k] = self.lineage[a];
             }
+            std::mem::swap(&mut self.lineage, &mut self.tmp_lineage);
             std::mem::swap(&mut self.x, &mut self.tmp_x);
             std::mem::swap(&mut self.maps, &mut self.tmp_maps);
             self.logw.fill(0.0);
@@ -135,6 +154,41 @@ impl<L: Clone> SlamParticles<L> {
             ess_fraction_sum: self.ess_fraction_sum,
             ..stats
         }
+    }
+
+    /// Label every particle by its own index in label slot `slot` (taken
+    /// modulo [`LINEAGE_SLOTS`]).
+    pub fn mark_ancestors(&mut self, slot: usize) {
+        let slot = slot % LINEAGE_SLOTS;
+        for (j, l) in self.lineage.iter_mut().enumerate() {
+            l[slot] = j as u32;
+        }
+    }
+
+    /// How many distinct labels of slot `slot` the particles carry: the
+    /// number of particles alive at the marking step that still have
+    /// descendants. Diagnostics only (allocates).
+    pub fn distinct_ancestors(&self, slot: usize) -> usize {
+        let slot = slot % LINEAGE_SLOTS;
+        let mut seen = vec![false; self.len()];
+        for l in &self.lineage {
+            seen[l[slot] as usize] = true;
+        }
+        seen.iter().filter(|&&s| s).count()
+    }
+
+    /// √(Σ_j w_j ‖p_j − p̄‖²) over the positions: the particle cloud's spread.
+    pub fn position_spread(&self) -> f64 {
+        let (mut mx, mut my) = (0.0, 0.0);
+        for (x, &w) in self.x.iter().zip(&self.w) {
+            mx += w * x[0];
+            my += w * x[1];
+        }
+        let mut s = 0.0;
+        for (x, &w) in self.x.iter().zip(&self.w) {
+            s += w * ((x[0] - mx).powi(2) + (x[1] - my).powi(2));
+        }
+        s.sqrt()
     }
 
     /// Index of the heaviest particle.

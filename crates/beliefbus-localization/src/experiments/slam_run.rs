@@ -1,0 +1,156 @@
+//! One filter on one synthetic car park for the `slam` experiment: the
+//! figures of Table 6 (error ‖p̂ − p‖/‖p‖ over the path, RMS, time per
+//! update, map error) and the diagnostics that explain them: the mean ESS,
+//! how often the set is resampled, the belief's own position spread
+//! √(trace Σ_pos) against the error it makes, and how many particles alive
+//! at the start, half way, 10 s and 1 s before the end still have
+//! descendants at the end (path and map depletion).
+
+use super::slam_noise::map_error;
+use crate::carpark::CarPark;
+use crate::error::LocalizationError;
+use crate::geometry::{Point, Pose};
+use crate::mcl::newton::NewtonSettings;
+use crate::slam::driver::{run_carpark_with, trajectory_error_pct, Pick, RunOptions};
+use crate::slam::ekf::EkfSlam;
+use crate::slam::fastslam::{FastSlam, Version};
+use crate::slam::implicit::ImplicitSlam;
+use crate::slam::implicit_rb::ImplicitRbSlam;
+use crate::slam::implicit_refine::ImplicitRefineSlam;
+use crate::slam::{SlamFilter, SlamModel};
+use beliefbus_core::rng::SimRng;
+use std::time::Instant;
+
+/// A filter by name and sample size.
+pub fn make_filter(
+    name: &str,
+    m: usize,
+    model: SlamModel,
+    ess: f64,
+    newton: NewtonSettings,
+) -> Result<Box<dyn SlamFilter>, LocalizationError> {
+    Ok(match name {
+        "implicit" => Box::new(ImplicitSlam::new(model, m, ess, newton)?),
+        "implicit-rb" => Box::new(ImplicitRbSlam::new(model, m, ess, newton)?),
+        "implicit-refine" => Box::new(ImplicitRefineSlam::new(model, m, ess, newton)?),
+        "fastslam1" => Box::new(FastSlam::new(model, Version::One, m, ess)?),
+        "fastslam2" => Box::new(FastSlam::new(model, Version::Two, m, ess)?),
+        _ => Box::new(EkfSlam::new(model)?),
+    })
+}
+
+/// How the filters associate returns with landmarks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AssocMode {
+    /// The ML rule, once per particle (FastSLAM's per-particle association).
+    PerParticle,
+    /// The ML rule once per return for the whole particle set.
+    Shared,
+    /// The true association (ablation).
+    Known,
+}
+
+impl AssocMode {
+    pub fn parse(s: &str) -> Result<Self, LocalizationError> {
+        match s {
+            "ml" => Ok(Self::PerParticle),
+            "shared" => Ok(Self::Shared),
+            "known" => Ok(Self::Known),
+            v => Err(LocalizationError::Param {
+                key: "association".into(),
+                msg: format!("'{v}': need 'ml', 'shared' or 'known'"),
+            }),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::PerParticle => "ml",
+            Self::Shared => "shared",
+            Self::Known => "known",
+        }
+    }
+}
+
+/// Figures of one filter run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RunMetrics {
+    pub error_pct: f64,
+    pub rms_m: f64,
+    pub time_ms: f64,
+    pub time_s: f64,
+    pub ess_fraction: f64,
+    /// Landmarks in the estimate's map per landmark truly seen.
+    pub map_ratio: f64,
+    /// Mean distance of the estimate's landmarks to the nearest true one (m).
+    pub map_err_m: f64,
+    /// Resamplings per update with returns.
+    pub resample_rate: f64,
+    /// RMS over the steps of the belief's position spread (m).
+    pub spread_m: f64,
+    /// Particles of the start, the middle, 10 s and 1 s before the end with
+    /// descendants at the end (NaN for a Gaussian filter).
+    pub ancestors: [f64; 4],
+}
+
+/// The steps at which the ancestor slots 1–3 are labelled (slot 0: the
+/// start, labelled by the reset): half way, 400 and 40 steps (10 s and 1 s
+/// at 40 Hz) before the end.
+pub fn mark_steps(steps: usize) -> Vec<(usize, usize)> {
+    vec![
+        (steps / 2, 1),
+        (steps.saturating_sub(400).max(1), 2),
+        (steps.saturating_sub(40).max(1), 3),
+    ]
+}
+
+/// Run `f` on data set `cp` with returns `picks`; the path estimate is
+/// written to `est` (steps 0..=N).
+pub fn run_one(
+    f: &mut dyn SlamFilter,
+    cp: &CarPark,
+    picks: &[Pick],
+    seen: usize,
+    rng: &mut SimRng,
+    assoc: AssocMode,
+    est: &mut [Pose],
+) -> Result<(RunMetrics, Vec<Point>), LocalizationError> {
+    let opt = RunOptions {
+        known_association: assoc == AssocMode::Known,
+        shared_association: assoc == AssocMode::Shared,
+        marks: mark_steps(cp.steps()),
+    };
+    let mut spread2 = 0.0;
+    let t0 = Instant::now();
+    run_carpark_with(f, cp, picks, rng, &opt, |n, e, fl| {
+        est[n] = *e;
+        spread2 += fl.position_spread().powi(2);
+    })?;
+    let time_s = t0.elapsed().as_secs_f64();
+    let n = cp.steps() as f64;
+    let se: f64 = cp
+        .truth
+        .iter()
+        .zip(est.iter())
+        .skip(1)
+        .map(|(t, e)| (e[0] - t[0]).powi(2) + (e[1] - t[1]).powi(2))
+        .sum();
+    let st = f.stats();
+    let map = f.map();
+    let anc = |slot| f.distinct_ancestors(slot).map_or(f64::NAN, |a| a as f64);
+    Ok((
+        RunMetrics {
+            map_err_m: map_error(&map, &cp.landmarks),
+            error_pct: trajectory_error_pct(&cp.truth, est),
+            rms_m: (se / n).sqrt(),
+            time_ms: 1e3 * time_s / n,
+            time_s,
+            ess_fraction: st.ess_fraction_sum / st.updates.max(1) as f64,
+            map_ratio: map.len() as f64 / seen.max(1) as f64,
+            resample_rate: st.resamplings as f64 / st.updates.max(1) as f64,
+            spread_m: (spread2 / n).sqrt(),
+            ancestors: [anc(0), anc(1), anc(2), anc(3)],
+        },
+        map,
+    ))
+}

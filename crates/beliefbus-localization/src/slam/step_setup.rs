@@ -1,0 +1,104 @@
+//! What every particle SLAM filter's step does before its per-particle
+//! loop: count the step, build the vehicle and Σ₁ for its length, move the
+//! particles by the motion model alone when no return arrived, otherwise
+//! the constants of the weights (Σ₂, ½ log det Σ₂, log 2π, the
+//! new-landmark density log(1/A), Σ₁ in the body frame and −½ log det Σ₁)
+//! and, with shared association, one association per return for the whole
+//! set ([`super::shared_assoc`]).
+
+use super::assoc::{Forced, RangeBearing};
+use super::particles::SlamParticles;
+use super::shared_assoc::shared_association;
+use super::{SlamModel, SlamStats};
+use crate::error::LocalizationError;
+use crate::geometry::{Point, Pose};
+use crate::vehicle::{Control, StepNoise, Ute};
+use beliefbus_core::rng::SimRng;
+use nalgebra::{Matrix2, Matrix3};
+
+/// The step's constants.
+pub struct StepSetup {
+    /// The step's number (from 1).
+    pub step: usize,
+    pub ute: Ute,
+    pub noise: StepNoise,
+    pub model: SlamModel,
+    /// Σ₂.
+    pub r: Matrix2<f64>,
+    /// ½ log det Σ₂.
+    pub half_logdet_r: f64,
+    pub ln2pi: f64,
+    /// log(1/A), the new-landmark prior density.
+    pub log_new: f64,
+    /// Σ₁ in the body frame.
+    pub s0: Matrix3<f64>,
+    /// −½ log det Σ₁: the motion density's normaliser, which the linear
+    /// map's weight keeps and a motion-model proposal cancels.
+    pub motion_norm: f64,
+}
+
+/// How a step goes on. Returned by value once per step: boxing the large
+/// variant would allocate on the hot path.
+#[allow(clippy::large_enum_variant)]
+pub enum Begin {
+    /// No return: the particles moved by the motion model; the estimate.
+    Predicted(Pose),
+    /// Returns to take in, with the step's constants.
+    Update(StepSetup),
+}
+
+/// A particle filter's own state that the set-up touches.
+pub struct FilterParts<'a, L: Clone> {
+    pub model: &'a SlamModel,
+    pub set: &'a mut SlamParticles<L>,
+    pub step: &'a mut usize,
+    pub stats: &'a mut SlamStats,
+    pub forced: &'a mut Forced,
+    pub shared: bool,
+}
+
+/// Start a step of a particle filter; `lm` gives a landmark's position and
+/// covariance for the shared association.
+pub fn begin_step<L: Clone>(
+    p: FilterParts<'_, L>,
+    u: Control,
+    dt: f64,
+    obs: &[RangeBearing],
+    rng: &mut SimRng,
+    lm: impl Fn(&L) -> (Point, Matrix2<f64>),
+) -> Result<Begin, LocalizationError> {
+    *p.step += 1;
+    let step = *p.step;
+    let (ute, noise) = p.model.step_noise(u, dt)?;
+    if obs.is_empty() {
+        return Ok(Begin::Predicted(p.set.predict_only(&ute, &noise, u, rng)));
+    }
+    p.stats.updates += 1;
+    let model = *p.model;
+    let r = model.r();
+    let s0 = noise.chol * noise.chol.transpose();
+    if p.shared && p.forced.is_empty() {
+        for z in obs {
+            match shared_association(p.set, &ute, u, &s0, &r, z, &model.assoc, &lm) {
+                Some(a) => p.forced.push(a),
+                None => {
+                    p.forced.clear();
+                    break;
+                }
+            }
+        }
+    }
+    let motion_norm = -(0..3).map(|i| noise.chol[(i, i)].ln()).sum::<f64>();
+    Ok(Begin::Update(StepSetup {
+        step,
+        ute,
+        noise,
+        model,
+        r,
+        half_logdet_r: 0.5 * (r[(0, 0)] * r[(1, 1)]).ln(),
+        ln2pi: (2.0 * std::f64::consts::PI).ln(),
+        log_new: model.log_new_density(),
+        s0,
+        motion_norm,
+    }))
+}
