@@ -313,29 +313,7 @@ impl SlamFilter for ImplicitRbSlam {
             .collect()
     }
 
-    fn set_shared_association(&mut self, on: bool) {
-        self.shared = on;
-    }
-
-    fn force_association(&mut self, a: &[Association]) {
-        self.forced.set(a);
-    }
-
-    fn position_spread(&self) -> f64 {
-        self.set.position_spread()
-    }
-
-    fn mark_ancestors(&mut self, slot: usize) {
-        self.set.mark_ancestors(slot);
-    }
-
-    fn distinct_ancestors(&self, slot: usize) -> Option<usize> {
-        Some(self.set.distinct_ancestors(slot))
-    }
-
-    fn stats(&self) -> SlamStats {
-        self.set.stats_with(self.stats)
-    }
+    particle_set_diagnostics!();
 }
 
 #[cfg(test)]

@@ -20,6 +20,37 @@
 //! half circle (area A = π r_max²/2), which fixes the weight of a new
 //! landmark against a re-observed one: r/A after θ is integrated out.
 
+/// The diagnostics every particle SLAM filter answers from its particle
+/// set and association settings (fields `set`, `shared`, `forced`,
+/// `stats`), written once for the four of them.
+macro_rules! particle_set_diagnostics {
+    () => {
+        fn set_shared_association(&mut self, on: bool) {
+            self.shared = on;
+        }
+
+        fn force_association(&mut self, a: &[$crate::slam::assoc::Association]) {
+            self.forced.set(a);
+        }
+
+        fn position_spread(&self) -> f64 {
+            self.set.position_spread()
+        }
+
+        fn mark_ancestors(&mut self, slot: usize) {
+            self.set.mark_ancestors(slot);
+        }
+
+        fn distinct_ancestors(&self, slot: usize) -> Option<usize> {
+            Some(self.set.distinct_ancestors(slot))
+        }
+
+        fn stats(&self) -> $crate::slam::SlamStats {
+            self.set.stats_with(self.stats)
+        }
+    };
+}
+
 pub mod arrow;
 #[cfg(test)]
 mod arrow_tests;
