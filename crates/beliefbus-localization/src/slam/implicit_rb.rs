@@ -21,7 +21,7 @@
 use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
 use super::fastslam::{init_landmark, update_landmark, Landmark};
 use super::particles::SlamParticles;
-use super::step_setup::{begin_step, Begin, FilterParts, StepSetup};
+use super::step_setup::{begin_step, Begin, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -185,14 +185,7 @@ impl SlamFilter for ImplicitRbSlam {
         obs: &[RangeBearing],
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
-        let parts = FilterParts {
-            model: &self.model,
-            set: &mut self.set,
-            step: &mut self.step,
-            stats: &mut self.stats,
-            forced: &mut self.forced,
-            shared: self.shared,
-        };
+        let parts = particle_filter_parts!(self);
         let StepSetup {
             step,
             ute,

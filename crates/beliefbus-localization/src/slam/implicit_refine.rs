@@ -33,7 +33,7 @@ use super::joint::JointObjective;
 use super::particles::SlamParticles;
 use super::refine::{backward_term, Objective};
 use super::refined_map::{Past, RefinedLandmark};
-use super::step_setup::{begin_step, Begin, FilterParts, StepSetup};
+use super::step_setup::{begin_step, Begin, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
@@ -163,14 +163,7 @@ impl SlamFilter for ImplicitRefineSlam {
         obs: &[RangeBearing],
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
-        let parts = FilterParts {
-            model: &self.model,
-            set: &mut self.set,
-            step: &mut self.step,
-            stats: &mut self.stats,
-            forced: &mut self.forced,
-            shared: self.shared,
-        };
+        let parts = particle_filter_parts!(self);
         let StepSetup {
             step,
             ute,

@@ -20,6 +20,21 @@
 //! half circle (area A = π r_max²/2), which fixes the weight of a new
 //! landmark against a re-observed one: r/A after θ is integrated out.
 
+/// The fields [`step_setup::begin_step`] takes from a particle SLAM
+/// filter, borrowed from `$f` (the same field names in the four of them).
+macro_rules! particle_filter_parts {
+    ($f:ident) => {
+        $crate::slam::step_setup::FilterParts {
+            model: &$f.model,
+            set: &mut $f.set,
+            step: &mut $f.step,
+            stats: &mut $f.stats,
+            forced: &mut $f.forced,
+            shared: $f.shared,
+        }
+    };
+}
+
 /// The diagnostics every particle SLAM filter answers from its particle
 /// set and association settings (fields `set`, `shared`, `forced`,
 /// `stats`), written once for the four of them.
