@@ -376,7 +376,9 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
         }
         _ => None,
     };
+    let host0 = crate::rt::host::snapshot();
     let cores = timer_baseline(&cfg, stop)?;
+    let baseline_host = crate::rt::host::loss(&host0, &crate::rt::host::snapshot(), &cfg.cores);
     drop(warm);
     let measured = match &pipe {
         Some((p, _)) if !stop.load(std::sync::atomic::Ordering::Relaxed) => {
@@ -432,6 +434,7 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
             stages: m.stages.iter().cloned().collect(),
             hops: m.report_hops.clone(),
             accuracy: m.report_accuracy.clone(),
+            host: m.report_host.clone(),
         });
     }
     let report = JitterReport {
@@ -446,6 +449,7 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
         pipeline: info,
         load,
         shm_left,
+        baseline_host,
         warnings,
     };
     print!("{}", report.render());

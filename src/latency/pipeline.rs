@@ -58,6 +58,10 @@ pub struct StageFigures {
     /// within the budget (preempted, not an overrun).
     #[serde(default)]
     pub deadline_misses_preempted: u64,
+    /// Of the preempted misses, those during which the stage was never
+    /// switched out (interrupts or the hypervisor took the time).
+    #[serde(default)]
+    pub deadline_misses_host: u64,
     pub budget_us: Option<f64>,
     pub compute_p50_us: Option<f64>,
     pub compute_p99_us: Option<f64>,
@@ -87,6 +91,8 @@ pub struct PipelineJitter {
     pub report_hops: serde_json::Value,
     /// `accuracy` of the run report (estimation error after the warm-up).
     pub report_accuracy: serde_json::Value,
+    /// The run report's `host` section (steal and interrupt time per core).
+    pub report_host: serde_json::Value,
     /// Shared-memory files of the run left after it ended.
     pub shm_left: usize,
     pub stopped: bool,
@@ -168,6 +174,7 @@ fn stage_figures(report: &serde_json::Value) -> Vec<(String, StageFigures)> {
                     dropped: s["dropped"].as_u64().unwrap_or(0),
                     deadline_misses: s["deadline_misses"].as_u64().unwrap_or(0),
                     deadline_misses_preempted: s["deadline_misses_preempted"].as_u64().unwrap_or(0),
+                    deadline_misses_host: s["deadline_misses_host"].as_u64().unwrap_or(0),
                     budget_us: s["budget_us"].as_f64(),
                     compute_p50_us: s["compute_p50_us"].as_f64(),
                     compute_p99_us: s["compute_p99_us"].as_f64(),
@@ -250,6 +257,7 @@ pub fn measure(
         stages: Vec::new(),
         report_hops: serde_json::Value::Null,
         report_accuracy: serde_json::Value::Null,
+        report_host: serde_json::Value::Null,
         shm_left: 0,
         stopped: false,
     };
@@ -338,6 +346,7 @@ pub fn measure(
             out.stages = stage_figures(r);
             out.report_hops = r["hops"].clone();
             out.report_accuracy = r["accuracy"].clone();
+            out.report_host = r["host"].clone();
         }
         (s, _) if !out.stopped => {
             return Err(err(format!(

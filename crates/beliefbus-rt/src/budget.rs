@@ -17,8 +17,18 @@
 //! it did. The rest are its own overruns. A message without a start mark
 //! measures from the previous mark, which can only make its CPU time larger:
 //! the split never calls an own overrun preempted.
+//!
+//! Taken by whom: a preempted miss during which the thread was never
+//! switched out (its voluntary + involuntary context-switch count did not
+//! move, [`thread_switches`]) lost its time without the guest kernel
+//! scheduling anything else in its place: the time went to interrupt
+//! handlers or to the hypervisor that runs the virtual CPU. Those are
+//! counted as *host* misses; the run's per-core steal and interrupt time
+//! (`crate::host`) say which of the two. A miss with a switch was taken by
+//! another thread of this machine (a higher-priority stage on the core, a
+//! kernel thread) and is the pipeline's own business.
 
-use super::clock::thread_cpu_ns;
+use super::clock::{thread_cpu_ns, thread_switches};
 use super::hist::LatencyHist;
 
 /// Compute-time accounting against a budget.
@@ -27,8 +37,11 @@ pub struct Budget {
     budget_ns: u64,
     misses: u64,
     preempted: u64,
+    host: u64,
     /// Thread CPU time at the last [`Budget::start`] (0: never marked).
     cpu_start_ns: u64,
+    /// The thread's context switches at the last [`Budget::start`].
+    switches_start: u64,
     compute: LatencyHist,
     response: LatencyHist,
     late: u64,
@@ -41,17 +54,20 @@ impl Budget {
             budget_ns,
             misses: 0,
             preempted: 0,
+            host: 0,
             cpu_start_ns: 0,
+            switches_start: 0,
             compute: LatencyHist::new(),
             response: LatencyHist::new(),
             late: 0,
         }
     }
 
-    /// Mark the start of a message's work for the preempted/overrun split
-    /// (one thread-CPU clock read).
+    /// Mark the start of a message's work for the preempted/overrun and
+    /// host split (a thread-CPU clock read and a context-switch count).
     pub fn start(&mut self) {
         self.cpu_start_ns = thread_cpu_ns();
+        self.switches_start = thread_switches();
     }
 
     /// Record one message that started at `start_ns` and finished at
@@ -63,7 +79,14 @@ impl Budget {
         self.misses += miss as u64;
         if miss && self.cpu_start_ns > 0 {
             let cpu = thread_cpu_ns().saturating_sub(self.cpu_start_ns);
-            self.preempted += (cpu <= self.budget_ns) as u64;
+            match classify(self.budget_ns, cpu, self.switches_start, thread_switches()) {
+                MissKind::Overrun => {}
+                MissKind::Preempted => self.preempted += 1,
+                MissKind::Host => {
+                    self.preempted += 1;
+                    self.host += 1;
+                }
+            }
         }
         miss
     }
@@ -109,9 +132,46 @@ impl Budget {
         self.preempted
     }
 
+    /// Of [`Budget::preempted`], those during which the thread was never
+    /// switched out: the time went to interrupts or the hypervisor.
+    pub fn host(&self) -> u64 {
+        self.host
+    }
+
     /// The compute-time histogram.
     pub fn compute(&self) -> &LatencyHist {
         &self.compute
+    }
+}
+
+/// Who a deadline miss belongs to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MissKind {
+    /// The stage's own CPU time exceeded the budget.
+    Overrun,
+    /// Within budget on the CPU, but the thread was switched out: another
+    /// thread of this machine ran in its place.
+    Preempted,
+    /// Within budget on the CPU and never switched out: interrupts or the
+    /// hypervisor took the time.
+    Host,
+}
+
+/// Classify a miss from the thread's CPU time over the message and its
+/// context-switch counts before and after (an unknown count, `u64::MAX`,
+/// never classes a miss as the host's).
+pub fn classify(
+    budget_ns: u64,
+    cpu_ns: u64,
+    switches_before: u64,
+    switches_after: u64,
+) -> MissKind {
+    if cpu_ns > budget_ns {
+        MissKind::Overrun
+    } else if switches_before == switches_after && switches_after != u64::MAX {
+        MissKind::Host
+    } else {
+        MissKind::Preempted
     }
 }
 
@@ -167,6 +227,8 @@ mod tests {
         std::thread::sleep(std::time::Duration::from_nanos(3 * budget));
         assert!(b.record(t0, crate::clock::now_ns()));
         assert_eq!((b.misses(), b.preempted()), (1, 1));
+        // The sleep switched the thread out: this machine, not the host.
+        assert_eq!(b.host(), 0);
         // Computing for 3× the budget: an own overrun.
         b.start();
         let t0 = crate::clock::now_ns();
@@ -179,5 +241,17 @@ mod tests {
         std::thread::sleep(std::time::Duration::from_nanos(3 * budget));
         assert!(b.record(t0, crate::clock::now_ns()));
         assert_eq!((b.misses(), b.preempted()), (3, 1));
+    }
+
+    #[test]
+    fn time_lost_without_a_context_switch_is_the_hosts() {
+        let b = 1_000;
+        assert_eq!(classify(b, 1_001, 5, 5), MissKind::Overrun);
+        assert_eq!(classify(b, 1_001, 5, 7), MissKind::Overrun);
+        assert_eq!(classify(b, 400, 5, 6), MissKind::Preempted);
+        assert_eq!(classify(b, 400, 5, 5), MissKind::Host);
+        assert_eq!(classify(b, 1_000, 9, 9), MissKind::Host);
+        // An unreadable count is never the host's.
+        assert_eq!(classify(b, 400, u64::MAX, u64::MAX), MissKind::Preempted);
     }
 }

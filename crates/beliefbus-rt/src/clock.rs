@@ -102,6 +102,21 @@ pub fn thread_cpu_ns() -> u64 {
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
+/// Context switches of the calling thread so far, voluntary and
+/// involuntary (`getrusage(RUSAGE_THREAD)`): if the count did not move
+/// across a stretch of wall time the thread was never taken off its CPU
+/// by the kernel, so any of that time it did not run went to interrupt
+/// handlers or to the hypervisor.
+pub fn thread_switches() -> u64 {
+    // SAFETY: an all-zero rusage is a valid value of the plain C struct.
+    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: getrusage writes one rusage through a valid pointer.
+    if unsafe { libc::getrusage(libc::RUSAGE_THREAD, &mut ru) } != 0 {
+        return u64::MAX;
+    }
+    ru.ru_nvcsw as u64 + ru.ru_nivcsw as u64
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -126,5 +141,13 @@ mod tests {
         assert_eq!(c.now_ns(), 1_000);
         c.advance(24);
         assert_eq!(c.now_ns(), 1_024);
+    }
+
+    #[test]
+    fn a_sleep_is_a_context_switch() {
+        let a = thread_switches();
+        std::thread::sleep(std::time::Duration::from_millis(2));
+        let b = thread_switches();
+        assert!(b > a && b != u64::MAX, "{a} -> {b}");
     }
 }

@@ -3,12 +3,14 @@
 //! deadline-miss accounting, core affinity, scheduling priority and memory
 //! locking (each with a one-line warning and a fallback when not permitted),
 //! idle-class spinners that keep the pipeline's cores awake (`keep_warm`),
+//! the time the machine took from each core (`host`: steal, interrupts),
 //! and the rules for every file a run writes (`files`).
 
 pub mod budget;
 pub mod clock;
 pub mod files;
 pub mod hist;
+pub mod host;
 pub mod keep_warm;
 pub mod sched;
 

@@ -98,6 +98,10 @@ pub struct JitterReport {
     pub load: LoadReport,
     /// Shared-memory files of the run left after cleanup (should be 0).
     pub shm_left: usize,
+    /// Time the machine took from the baseline's cores while it ran
+    /// (steal, interrupts; `beliefbus_rt::host`).
+    #[serde(default)]
+    pub baseline_host: Vec<crate::rt::host::CoreLoss>,
     pub warnings: Vec<String>,
 }
 
@@ -118,6 +122,10 @@ pub struct PipelineInfo {
     /// reference, ...; after warm-up).
     #[serde(default)]
     pub accuracy: serde_json::Value,
+    /// The run report's `host` section: time the machine took from the
+    /// stages' cores during the run.
+    #[serde(default)]
+    pub host: serde_json::Value,
 }
 
 /// The baseline entries (merged, per core) of a timer run.
@@ -188,7 +196,13 @@ impl JitterReport {
         for p in &self.paths {
             s += &fmt_row(p);
         }
-        s += "(timer rows: jit = |period − T|, lat = wake-up latency, misses = late by a period; pipeline rows: lat = end-to-end (sensor->ingest for sensor), misses = above the budget, preempted = of those, the ones whose own CPU time stayed within it; r = jitter ratio to the timer)\n";
+        s += "(timer rows: jit = |period − T|, lat = wake-up latency, misses = late by a period; pipeline rows: lat = end-to-end (sensor->ingest for sensor), misses = above the budget, preempted = of those, the ones whose own CPU time stayed within it, host = of those, the ones never switched out (interrupts or the hypervisor took the time); r = jitter ratio to the timer)\n";
+        if !self.baseline_host.is_empty() {
+            s += &format!(
+                "host time taken during the timer baseline: {}\n",
+                crate::rt::host::describe(&self.baseline_host)
+            );
+        }
         if let Some(p) = &self.pipeline {
             s += &format!(
                 "pipeline {} at {} Hz: {} controls measured; stage compute vs budget (µs):\n",
@@ -197,7 +211,7 @@ impl JitterReport {
             let o = |x: Option<f64>| x.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
             for (name, f) in &p.stages {
                 s += &format!(
-                    "  {:<8} processed {:>8}  dropped {:>5}  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5} (preempted {:>5})  late {:>5}  lateness p99 {:>8}\n",
+                    "  {:<8} processed {:>8}  dropped {:>5}  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5} (preempted {:>5}, host {:>5})  late {:>5}  lateness p99 {:>8}\n",
                     name,
                     f.processed,
                     f.dropped,
@@ -206,10 +220,27 @@ impl JitterReport {
                     o(f.budget_us),
                     f.deadline_misses,
                     f.deadline_misses_preempted,
+                    f.deadline_misses_host,
                     f.late,
                     o(f.lateness_p99_us)
                 );
             }
+        }
+        if let Some(p) = &self.pipeline {
+            let total: u64 = p.stages.values().map(|f| f.deadline_misses).sum();
+            let host: u64 = p.stages.values().map(|f| f.deadline_misses_host).sum();
+            let cores: Vec<crate::rt::host::CoreLoss> =
+                serde_json::from_value(p.host["cores"].clone()).unwrap_or_default();
+            if !cores.is_empty() {
+                s += &format!(
+                    "host time taken during the pipeline run: {}\n",
+                    crate::rt::host::describe(&cores)
+                );
+            }
+            s += &format!(
+                "deadline misses, all stages: {total}; taken by the host {host}; the pipeline's own {}\n",
+                total - host
+            );
         }
         if let Some(p) = &self.pipeline {
             let a = |k: &str| {

@@ -115,7 +115,7 @@ pub mod stats_flags {
 
 /// Periodic (and final) statistics of a stage (stage → launcher).
 #[derive(Clone, Copy, Debug, PartialEq, ZeroCopySend)]
-#[type_name("beliefbus.StageStats.v3")]
+#[type_name("beliefbus.StageStats.v4")]
 #[repr(C)]
 pub struct StageStats {
     /// seq: report number; t_valid = t_pub: when the report was made.
@@ -145,6 +145,10 @@ pub struct StageStats {
     /// the budget: the stage was preempted (by another thread, the kernel
     /// or the host), it did not overrun (see `beliefbus_rt::budget`).
     pub deadline_misses_preempted: u64,
+    /// Of `deadline_misses_preempted`, those during which the stage's
+    /// thread was never switched out: interrupts or the hypervisor took
+    /// the time (`beliefbus_rt::budget::MissKind::Host`).
+    pub deadline_misses_host: u64,
     pub budget_ns: u64,
     /// Compute time per processed message.
     pub compute: Percentiles,
@@ -231,6 +235,7 @@ impl Default for StageStats {
             rejected_by_reason: [0; STATS_REASONS],
             deadline_misses: 0,
             deadline_misses_preempted: 0,
+            deadline_misses_host: 0,
             budget_ns: 0,
             compute: Percentiles::default(),
             hops: [HopStats::default(); STATS_HOPS],

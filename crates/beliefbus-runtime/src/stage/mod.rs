@@ -306,6 +306,7 @@ impl Metrics {
             rejected_by_reason: self.rejected_by_reason,
             deadline_misses: self.budget.misses(),
             deadline_misses_preempted: self.budget.preempted(),
+            deadline_misses_host: self.budget.host(),
             budget_ns: self.budget.budget_ns(),
             compute: Percentiles::from(self.budget.compute()),
             controls_received: self.controls_received,

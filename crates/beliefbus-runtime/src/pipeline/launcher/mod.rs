@@ -187,12 +187,30 @@ pub fn keep_warm(cfg: &PipelineConfig) -> Option<crate::rt::KeepWarm> {
     Some(w)
 }
 
+/// The time the machine took from the stages' cores since `before`
+/// (none where no stage is pinned or `/proc/stat` is unreadable).
+fn host_report(
+    cfg: &PipelineConfig,
+    before: &[crate::rt::host::CoreTimes],
+) -> Option<crate::pipeline::report::HostReport> {
+    let mut cores: Vec<usize> = StageKind::ALL
+        .iter()
+        .filter_map(|&k| cfg.stages.get(k).core)
+        .collect();
+    cores.sort_unstable();
+    cores.dedup();
+    let l = crate::rt::host::loss(before, &crate::rt::host::snapshot(), &cores);
+    (!l.is_empty()).then_some(crate::pipeline::report::HostReport { cores: l })
+}
+
 /// Run the pipeline; returns the report JSON.
 pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, LaunchError> {
     let mut cfg = load_config(opts)?;
     let prefix = prepare_prefix(&mut cfg, opts);
     let warm = keep_warm(&cfg);
+    let host0 = crate::rt::host::snapshot();
     let result = run_loop::supervise(&cfg, opts, &prefix, stop);
+    let host = host_report(&cfg, &host0);
     drop(warm);
     // Whatever happened, leave nothing behind.
     let cleaned = cleanup::remove_prefix(&prefix);
@@ -215,6 +233,13 @@ pub fn run(opts: &RunOptions, stop: &AtomicBool) -> Result<serde_json::Value, La
     if let Some(line) = report::supervision_line(&rep) {
         println!("{line}");
     }
+    if let Some(h) = &host {
+        println!(
+            "host: time taken from the stages' cores: {}",
+            crate::rt::host::describe(&h.cores)
+        );
+    }
+    rep.host = host;
     let json = serde_json::to_value(&rep).context("serialising the report")?;
     if let Some(path) = &opts.report {
         let text = serde_json::to_string_pretty(&json).context("serialising the report")?;

@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 pub(super) const KILL_REAP_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// Number of counters carried over from earlier incarnations.
-const CARRIED: usize = 9;
+const CARRIED: usize = 10;
 
 /// One stage of the run: its current process and its history.
 pub(super) struct Stage {
@@ -163,6 +163,7 @@ impl Stage {
         st.processed_after_warmup += e[6];
         st.ess_collapses += e[7];
         st.deadline_misses_preempted += e[8];
+        st.deadline_misses_host += e[9];
         for (d, x) in st.dropped_by_reason.iter_mut().zip(self.earlier_drops) {
             *d += x;
         }
@@ -213,6 +214,7 @@ fn counters(st: &StageStats) -> [u64; CARRIED] {
         st.processed_after_warmup,
         st.ess_collapses,
         st.deadline_misses_preempted,
+        st.deadline_misses_host,
     ]
 }
 

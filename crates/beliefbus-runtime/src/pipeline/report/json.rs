@@ -56,6 +56,20 @@ pub struct RunReport {
     /// The timeline summary (`--timeline`; null without samples).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timeline: Option<Value>,
+    /// Time the machine took from the stages' cores during the run
+    /// (present when the launcher ran it on Linux).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<HostReport>,
+}
+
+/// Time taken from each core the stages are pinned to, over the run
+/// (`/proc/stat`, 10 ms resolution; `beliefbus_rt::host`): the
+/// hypervisor's steal and the kernel's interrupt handlers. Beside the
+/// stages' `deadline_misses_host` it says whether a miss was the
+/// pipeline's or the machine's.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct HostReport {
+    pub cores: Vec<crate::rt::host::CoreLoss>,
 }
 
 /// Percentiles of one hop in µs (`count` 0 and `null`s without data).
@@ -84,6 +98,12 @@ pub struct StageReport {
     /// Of the misses, those during which the stage's own CPU time stayed
     /// within the budget: preempted, not an overrun.
     pub deadline_misses_preempted: u64,
+    /// Of the preempted misses, those during which the stage's thread was
+    /// never switched out: interrupts or the hypervisor took the time (see
+    /// `host` for the run's steal and interrupt time per core). Added with
+    /// a default: reports written before it parse.
+    #[serde(default)]
+    pub deadline_misses_host: u64,
     pub compute_p50_us: Option<f64>,
     pub compute_p99_us: Option<f64>,
     pub budget_us: f64,
@@ -289,6 +309,7 @@ fn stage_report(kind: StageKind, end: &super::StageEnd) -> StageReport {
             .collect(),
         deadline_misses: s.deadline_misses,
         deadline_misses_preempted: s.deadline_misses_preempted,
+        deadline_misses_host: s.deadline_misses_host,
         compute_p50_us: (c.count > 0).then(|| us(c.p50_ns)),
         compute_p99_us: (c.count > 0).then(|| us(c.p99_ns)),
         budget_us: us(s.budget_ns),
@@ -376,6 +397,7 @@ impl ReportInput {
                 .collect(),
             supervisor: None,
             timeline: None,
+            host: None,
         }
     }
 

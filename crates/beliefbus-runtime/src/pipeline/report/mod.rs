@@ -52,9 +52,9 @@ mod json;
 mod render;
 
 pub use json::{
-    AccuracyReport, ChainReport, ControlReport, FilterReport, HopJson, ObservationBooks,
-    RecoveryReport, RecoverySummary, RunReport, SharedMemoryReport, StageReport, StageSupervision,
-    StreamsReport, SupervisorReport, REPORT_SCHEMA_VERSION,
+    AccuracyReport, ChainReport, ControlReport, FilterReport, HopJson, HostReport,
+    ObservationBooks, RecoveryReport, RecoverySummary, RunReport, SharedMemoryReport, StageReport,
+    StageSupervision, StreamsReport, SupervisorReport, REPORT_SCHEMA_VERSION,
 };
 
 use super::monitor::Accuracy;

@@ -41,10 +41,12 @@ impl ReportInput {
 
     /// One line per stage: pid, core, counters, compute and lateness.
     /// `preempt`: the misses during which the stage's own CPU time stayed
-    /// within its budget (time taken from it, not an overrun).
+    /// within its budget (time taken from it, not an overrun); `host`: of
+    /// those, the ones during which it was never switched out (interrupts
+    /// or the hypervisor took the time).
     fn stage_table(&self) -> String {
         let mut out = format!(
-            "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>7} {:>10} {:>10} {:>9} {:>6} {:>11}\n",
+            "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>7} {:>5} {:>10} {:>10} {:>9} {:>6} {:>11}\n",
             "stage",
             "pid",
             "core",
@@ -53,6 +55,7 @@ impl ReportInput {
             "rejected",
             "misses",
             "preempt",
+            "host",
             "cpu p50µs",
             "cpu p99µs",
             "budgetµs",
@@ -62,7 +65,7 @@ impl ReportInput {
         for (kind, end) in &self.stages {
             let s = end.stats.unwrap_or_default();
             out.push_str(&format!(
-                "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>7} {:>10.1} {:>10.1} {:>9.0} {:>6} {:>11}\n",
+                "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>7} {:>5} {:>10.1} {:>10.1} {:>9.0} {:>6} {:>11}\n",
                 kind.name(),
                 end.pid.map(|p| p.to_string()).unwrap_or("-".into()),
                 if s.core >= 0 {
@@ -75,6 +78,7 @@ impl ReportInput {
                 s.rejected,
                 s.deadline_misses,
                 s.deadline_misses_preempted,
+                s.deadline_misses_host,
                 us(s.compute.p50_ns),
                 us(s.compute.p99_ns),
                 us(s.budget_ns),

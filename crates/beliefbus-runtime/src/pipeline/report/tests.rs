@@ -95,6 +95,7 @@ fn json_has_every_documented_key() {
             "rejected",
             "deadline_misses",
             "deadline_misses_preempted",
+            "deadline_misses_host",
             "compute_p50_us",
             "compute_p99_us",
             "budget_us",
