@@ -53,6 +53,9 @@ pub struct StageFigures {
     /// queued at shutdown) — for control: beliefs without a control.
     #[serde(default)]
     pub dropped: u64,
+    /// Of the stale drops, those published while the stage was waiting.
+    #[serde(default)]
+    pub dropped_stale_idle: u64,
     pub deadline_misses: u64,
     /// Of the misses, those during which the stage's own CPU time stayed
     /// within the budget (preempted, not an overrun).
@@ -172,6 +175,7 @@ fn stage_figures(report: &serde_json::Value) -> Vec<(String, StageFigures)> {
                 StageFigures {
                     processed: s["processed"].as_u64().unwrap_or(0),
                     dropped: s["dropped"].as_u64().unwrap_or(0),
+                    dropped_stale_idle: s["dropped_stale_idle"].as_u64().unwrap_or(0),
                     deadline_misses: s["deadline_misses"].as_u64().unwrap_or(0),
                     deadline_misses_preempted: s["deadline_misses_preempted"].as_u64().unwrap_or(0),
                     deadline_misses_host: s["deadline_misses_host"].as_u64().unwrap_or(0),

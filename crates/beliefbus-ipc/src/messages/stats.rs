@@ -149,6 +149,11 @@ pub struct StageStats {
     /// thread was never switched out: interrupts or the hypervisor took
     /// the time (`beliefbus_rt::budget::MissKind::Host`).
     pub deadline_misses_host: u64,
+    /// Control: of the stale drops, those published while the stage was
+    /// waiting for work: its own backlog did not delay them, the core was
+    /// not given to it in time (interrupts, the host, a higher-priority
+    /// thread) or the wake-up came late.
+    pub dropped_stale_idle: u64,
     pub budget_ns: u64,
     /// Compute time per processed message.
     pub compute: Percentiles,
@@ -236,6 +241,7 @@ impl Default for StageStats {
             deadline_misses: 0,
             deadline_misses_preempted: 0,
             deadline_misses_host: 0,
+            dropped_stale_idle: 0,
             budget_ns: 0,
             compute: Percentiles::default(),
             hops: [HopStats::default(); STATS_HOPS],

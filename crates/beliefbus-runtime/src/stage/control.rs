@@ -267,6 +267,10 @@ pub fn run_with(
     let belief = &ports.belief;
     let control = &mut ports.control;
     let stats = &mut ports.stats;
+    // When the stage last ran out of work: a belief published after it
+    // found the stage waiting, so if it still went stale the stage's own
+    // backlog did not delay it.
+    let mut idle_since = clock.now_ns();
     run_loop(&[belief], rt.wake_mode(), tick, stop, |w| {
         guarded(&mut err, || {
             // Latest value: one belief per wake-up, the newest; a queue:
@@ -287,6 +291,7 @@ pub fn run_with(
                     if max_age_ns > 0 && t_in.saturating_sub(b.header.t_pub_ns) > max_age_ns {
                         // Stale: wait for a fresh one.
                         m.count_drop(DropReason::Stale, 1);
+                        m.stale_while_idle += (b.header.t_pub_ns >= idle_since) as u64;
                         continue;
                     }
                     let Some(backend) = backend.as_mut() else {
@@ -363,6 +368,7 @@ pub fn run_with(
                 }
             }
             stats.tick(&m, clock.now_ns())?;
+            idle_since = clock.now_ns();
             Ok(())
         })
     })?;

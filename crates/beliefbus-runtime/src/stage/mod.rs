@@ -200,6 +200,9 @@ pub struct Metrics {
     /// Filter: collapsed steps of a weighted filter (PF, chain; None for a
     /// Gaussian filter; see `filter::regularise`).
     pub ess_collapses: Option<u64>,
+    /// Control: stale drops of inputs published while the stage was
+    /// waiting (see [`StageStats::dropped_stale_idle`]).
+    pub stale_while_idle: u64,
 }
 
 /// Chain figures of a stage (see the `chain_*` fields of [`StageStats`]).
@@ -243,6 +246,7 @@ impl Metrics {
             cost_time: 0.0,
             chain: ChainMetrics::default(),
             ess_collapses: None,
+            stale_while_idle: 0,
         }
     }
 
@@ -307,6 +311,7 @@ impl Metrics {
             deadline_misses: self.budget.misses(),
             deadline_misses_preempted: self.budget.preempted(),
             deadline_misses_host: self.budget.host(),
+            dropped_stale_idle: self.stale_while_idle,
             budget_ns: self.budget.budget_ns(),
             compute: Percentiles::from(self.budget.compute()),
             controls_received: self.controls_received,

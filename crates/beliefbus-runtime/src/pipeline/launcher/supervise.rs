@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 pub(super) const KILL_REAP_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// Number of counters carried over from earlier incarnations.
-const CARRIED: usize = 10;
+const CARRIED: usize = 11;
 
 /// One stage of the run: its current process and its history.
 pub(super) struct Stage {
@@ -164,6 +164,7 @@ impl Stage {
         st.ess_collapses += e[7];
         st.deadline_misses_preempted += e[8];
         st.deadline_misses_host += e[9];
+        st.dropped_stale_idle += e[10];
         for (d, x) in st.dropped_by_reason.iter_mut().zip(self.earlier_drops) {
             *d += x;
         }
@@ -215,6 +216,7 @@ fn counters(st: &StageStats) -> [u64; CARRIED] {
         st.ess_collapses,
         st.deadline_misses_preempted,
         st.deadline_misses_host,
+        st.dropped_stale_idle,
     ]
 }
 

@@ -92,6 +92,11 @@ pub struct StageReport {
     pub processed: u64,
     pub dropped: u64,
     pub dropped_by_reason: BTreeMap<String, u64>,
+    /// Control: of the stale drops, those published while the stage was
+    /// waiting for work (its own backlog did not delay them). Added with a
+    /// default: reports written before it parse.
+    #[serde(default)]
+    pub dropped_stale_idle: u64,
     pub rejected: u64,
     pub rejected_by_reason: BTreeMap<String, u64>,
     pub deadline_misses: u64,
@@ -301,6 +306,7 @@ fn stage_report(kind: StageKind, end: &super::StageEnd) -> StageReport {
             .iter()
             .map(|r| (r.name().to_string(), s.dropped_by_reason[*r as usize]))
             .collect(),
+        dropped_stale_idle: s.dropped_stale_idle,
         rejected: s.rejected,
         rejected_by_reason: reason_names(kind)
             .iter()

@@ -96,6 +96,7 @@ fn json_has_every_documented_key() {
             "deadline_misses",
             "deadline_misses_preempted",
             "deadline_misses_host",
+            "dropped_stale_idle",
             "compute_p50_us",
             "compute_p99_us",
             "budget_us",

@@ -390,4 +390,31 @@ fn control_skips_stale_beliefs_under_the_freshness_policy() {
     );
     assert_eq!(fin.processed as usize, got_t.len());
     assert_eq!(fin.processed + fin.dropped, 10);
+    // The stale ones were 50 ms old when published, older than the
+    // stage's 30 ms wait: already stale before it went idle.
+    assert_eq!(fin.dropped_stale_idle, 0);
+}
+
+#[test]
+fn a_belief_that_goes_stale_while_the_stage_waits_is_counted_as_such() {
+    // A freshness limit of 1 µs: no wake-up is that fast, so every belief
+    // is stale when read, each published into an idle stage.
+    let sets = ["control.mppi.samples=64", "control.max_belief_age_us=1"];
+    let (n, fin) = with_control_stage(&sets, |beliefs, _| {
+        let clock = MonotonicClock;
+        let g = crate::belief::Gaussian::diagonal(&[0.0; 4], &[0.1; 4]);
+        for k in 0..5u64 {
+            let mut b = Belief::default();
+            b.set_gaussian(&g);
+            b.header.seq = k;
+            b.header.t_valid_ns = clock.now_ns();
+            b.header.t_pub_ns = clock.now_ns();
+            beliefs.publish(&b).unwrap();
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        5
+    });
+    assert_eq!(fin.processed, 0);
+    assert_eq!(fin.dropped_by_reason[DropReason::Stale as usize], n);
+    assert_eq!(fin.dropped_stale_idle, n);
 }
