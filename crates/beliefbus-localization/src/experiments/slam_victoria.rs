@@ -25,6 +25,7 @@ use crate::geometry::{Point, Pose};
 use crate::laser::LaserNoise;
 use crate::mcl::newton::NewtonSettings;
 use crate::slam::assoc::{AssocConfig, RangeBearing};
+use crate::slam::scan_assoc::Exclusion;
 use crate::slam::SlamModel;
 use crate::vehicle::{Control, MotionNoise, Ute};
 use crate::victoria;
@@ -56,7 +57,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p("gps_max_speed", "10", "drop a GPS fix implying a higher speed (m/s) from the last kept one"),
     p("ess_threshold", "0.5", "resample when ESS < this fraction of the samples"),
     p("association", "ml", "'ml': the ML rule once per particle; 'shared': once per return for the whole particle set (slam::shared_assoc)"),
-    p("exclusive", "0", "1: a scan's returns are associated jointly, one landmark per return at most (slam::scan_assoc), by every method"),
+    p("exclusive", "off", "'next' or 'drop': a scan's returns are associated jointly, one landmark per return at most, a return beaten to its landmark taking its next candidate or dropped (slam::scan_assoc), by every method; 'off': each return on its own"),
     p("per_run", "(none)", "write each seed's rms_m and p95_m per method to this CSV (for paired comparisons)"),
     p("plot", "(none)", "write an SVG of each method's path and map over GPS and dead reckoning here"),
 ];
@@ -174,16 +175,11 @@ pub fn run(
             })
         }
     };
-    let exclusive = match ps.raw("exclusive").unwrap_or("0") {
-        "0" => false,
-        "1" => true,
-        v => {
-            return Err(LocalizationError::Param {
-                key: "exclusive".into(),
-                msg: format!("'{v}': need 0 or 1"),
-            })
-        }
-    };
+    let exclusive = ps.raw("exclusive").unwrap_or("off");
+    let exclusive = Exclusion::parse(exclusive).ok_or_else(|| LocalizationError::Param {
+        key: "exclusive".into(),
+        msg: format!("'{exclusive}': need off, next or drop"),
+    })?;
     let per_run_path = ps.raw("per_run").map(str::to_string);
     let mut per_run = String::from("method,samples,run,rms_m,p95_m,landmarks\n");
     let plot = ps.raw("plot").map(str::to_string);
@@ -251,7 +247,7 @@ pub fn run(
     }
     let mut rep = Report::new("slam-victoria-park");
     rep.param("association_given", if shared { "shared" } else { "ml" });
-    rep.param("exclusive", u64::from(exclusive));
+    rep.param("exclusive", exclusive.name());
     rep.lead_columns(&["samples", "rms_m", "p95_m", "landmarks", "time_ms"]);
     let (dr_rms, dr_p95) = rms_p95(&gps_errors(&times, &dr, &gps));
     rep.results.push(
@@ -278,7 +274,7 @@ pub fn run(
             for r in 0..reps as u64 {
                 let mut f = make_filter(name, m, model, ess, NewtonSettings::default())?;
                 f.set_shared_association(shared);
-                f.set_exclusive_association(exclusive);
+                f.set_exclusion(exclusive);
                 f.reset(&start);
                 let mut rng = stream(seed, r);
                 let mut path = vec![start; times.len()];

@@ -371,8 +371,8 @@ impl SlamFilter for EkfSlam {
         self.forced.set(a);
     }
 
-    fn set_exclusive_association(&mut self, on: bool) {
-        self.scan.exclusive = on;
+    fn set_exclusion(&mut self, e: super::scan_assoc::Exclusion) {
+        self.scan.exclusive = e;
     }
 
     fn position_spread(&self) -> f64 {

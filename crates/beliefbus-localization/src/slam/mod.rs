@@ -45,8 +45,8 @@ macro_rules! particle_set_diagnostics {
             self.shared = on;
         }
 
-        fn set_exclusive_association(&mut self, on: bool) {
-            self.scan.exclusive = on;
+        fn set_exclusion(&mut self, e: $crate::slam::scan_assoc::Exclusion) {
+            self.scan.exclusive = e;
         }
 
         fn force_association(&mut self, a: &[$crate::slam::assoc::Association]) {
@@ -200,7 +200,7 @@ pub trait SlamFilter {
     fn set_shared_association(&mut self, _on: bool) {}
     /// Associate a scan's returns jointly, one landmark per return at most
     /// ([`scan_assoc`]), instead of each return on its own.
-    fn set_exclusive_association(&mut self, _on: bool) {}
+    fn set_exclusion(&mut self, _e: scan_assoc::Exclusion) {}
     /// √(trace of the position covariance) of the current belief (m).
     fn position_spread(&self) -> f64;
     /// Particle filters: label every particle by its index in slot `slot`

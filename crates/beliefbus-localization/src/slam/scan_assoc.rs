@@ -22,6 +22,39 @@
 use super::assoc::{AssocConfig, Association};
 use nalgebra::{Matrix2, Vector2};
 
+/// How the returns of one scan share landmarks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Exclusion {
+    /// Each return on its own (two may take one landmark).
+    #[default]
+    Off,
+    /// One landmark per return; a return beaten to its landmark takes its
+    /// next gated candidate.
+    NextBest,
+    /// One landmark per return; a return beaten to its landmark is dropped.
+    Drop,
+}
+
+impl Exclusion {
+    /// `off`, `next` or `drop`.
+    pub fn parse(v: &str) -> Option<Self> {
+        match v {
+            "off" | "0" => Some(Self::Off),
+            "next" | "1" => Some(Self::NextBest),
+            "drop" => Some(Self::Drop),
+            _ => None,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Off => "off",
+            Self::NextBest => "next",
+            Self::Drop => "drop",
+        }
+    }
+}
+
 /// One gated (return, landmark) pair and its log-likelihood.
 #[derive(Clone, Copy, Debug)]
 struct Pair {
@@ -33,19 +66,21 @@ struct Pair {
 /// The scores of one scan's returns and the decision.
 #[derive(Clone, Debug, Default)]
 pub struct ScanAssoc {
-    /// Mutual exclusion within a scan (off: each return on its own).
-    pub exclusive: bool,
+    /// Mutual exclusion within a scan.
+    pub exclusive: Exclusion,
     pairs: Vec<Pair>,
     min_d2: Vec<f64>,
+    done: Vec<bool>,
     out: Vec<Association>,
 }
 
 impl ScanAssoc {
     pub fn with_capacity(n: usize) -> Self {
         Self {
-            exclusive: false,
+            exclusive: Exclusion::Off,
             pairs: Vec::with_capacity(4 * n),
             min_d2: Vec::with_capacity(n),
+            done: Vec::with_capacity(n),
             out: Vec::with_capacity(n),
         }
     }
@@ -92,6 +127,8 @@ impl ScanAssoc {
         let n = self.min_d2.len();
         self.out.clear();
         self.out.resize(n, Association::Discard);
+        self.done.clear();
+        self.done.resize(n, false);
         // Best first; ties keep the order offered (stable on equal ll is not
         // needed for determinism: the order offered is deterministic).
         self.pairs.sort_unstable_by(|a, b| {
@@ -100,16 +137,19 @@ impl ScanAssoc {
                 .then(a.lm.cmp(&b.lm))
         });
         for p in &self.pairs {
-            if matches!(self.out[p.ret], Association::Known(_)) {
+            if self.done[p.ret] {
                 continue;
             }
-            let taken = exclusive
+            let taken = exclusive != Exclusion::Off
                 && self
                     .out
                     .iter()
                     .any(|a| matches!(a, Association::Known(k) if *k == p.lm));
             if !taken {
                 self.out[p.ret] = Association::Known(p.lm);
+                self.done[p.ret] = true;
+            } else if exclusive == Exclusion::Drop {
+                self.done[p.ret] = true;
             }
         }
         for (a, &d2) in self.out.iter_mut().zip(&self.min_d2) {
@@ -185,11 +225,18 @@ mod tests {
             &[Association::Known(0), Association::Known(0)]
         );
         offer_all(&mut sa);
-        sa.exclusive = true;
+        sa.exclusive = Exclusion::NextBest;
         assert_eq!(
             sa.decide(&cfg),
             &[Association::Known(0), Association::Known(1)]
         );
+        offer_all(&mut sa);
+        sa.exclusive = Exclusion::Drop;
+        assert_eq!(
+            sa.decide(&cfg),
+            &[Association::Known(0), Association::Discard]
+        );
+        sa.exclusive = Exclusion::NextBest;
         // Without a second candidate the loser is ambiguous (d² < new threshold).
         sa.begin(2);
         sa.offer(0, 0, &near, &s(1.0), &cfg);
