@@ -25,6 +25,7 @@ use crate::geometry::{Point, Pose};
 use crate::laser::LaserNoise;
 use crate::mcl::newton::NewtonSettings;
 use crate::slam::assoc::{AssocConfig, RangeBearing};
+use crate::slam::scan_assoc::Exclusion;
 use crate::slam::SlamModel;
 use crate::vehicle::{Control, MotionNoise, Ute};
 use crate::victoria;
@@ -56,6 +57,8 @@ pub const PARAMS: &[ParamDoc] = &[
     p("gps_max_speed", "10", "drop a GPS fix implying a higher speed (m/s) from the last kept one"),
     p("ess_threshold", "0.5", "resample when ESS < this fraction of the samples"),
     p("association", "ml", "'ml': the ML rule once per particle; 'shared': once per return for the whole particle set (slam::shared_assoc)"),
+    p("exclusive", "off", "'next' or 'drop': a scan's returns are associated jointly, one landmark per return at most, a return beaten to its landmark taking its next candidate or dropped (slam::scan_assoc), by every method; 'off': each return on its own"),
+    p("per_run", "(none)", "write each seed's rms_m and p95_m per method to this CSV (for paired comparisons)"),
     p("plot", "(none)", "write an SVG of each method's path and map over GPS and dead reckoning here"),
 ];
 
@@ -172,6 +175,13 @@ pub fn run(
             })
         }
     };
+    let exclusive = ps.raw("exclusive").unwrap_or("off");
+    let exclusive = Exclusion::parse(exclusive).ok_or_else(|| LocalizationError::Param {
+        key: "exclusive".into(),
+        msg: format!("'{exclusive}': need off, next or drop"),
+    })?;
+    let per_run_path = ps.raw("per_run").map(str::to_string);
+    let mut per_run = String::from("method,samples,run,rms_m,p95_m,landmarks\n");
     let plot = ps.raw("plot").map(str::to_string);
     let runs = runs.unwrap_or(1).max(1);
 
@@ -237,6 +247,7 @@ pub fn run(
     }
     let mut rep = Report::new("slam-victoria-park");
     rep.param("association_given", if shared { "shared" } else { "ml" });
+    rep.param("exclusive", exclusive.name());
     rep.lead_columns(&["samples", "rms_m", "p95_m", "landmarks", "time_ms"]);
     let (dr_rms, dr_p95) = rms_p95(&gps_errors(&times, &dr, &gps));
     rep.results.push(
@@ -263,6 +274,7 @@ pub fn run(
             for r in 0..reps as u64 {
                 let mut f = make_filter(name, m, model, ess, NewtonSettings::default())?;
                 f.set_shared_association(shared);
+                f.set_exclusion(exclusive);
                 f.reset(&start);
                 let mut rng = stream(seed, r);
                 let mut path = vec![start; times.len()];
@@ -275,6 +287,7 @@ pub fn run(
                 let (rms, p95) = rms_p95(&gps_errors(&times, &path, &gps));
                 let map = f.map();
                 let st = f.stats();
+                per_run.push_str(&format!("{name},{m},{r},{rms},{p95},{}\n", map.len()));
                 figs.push((
                     rms,
                     p95,
@@ -350,6 +363,12 @@ pub fn run(
     rep.notes.push(
         "times are wall-clock on a shared 2-core machine under load from other builds".into(),
     );
+    if let Some(path) = &per_run_path {
+        std::fs::write(path, &per_run).map_err(|e| LocalizationError::Param {
+            key: "per_run".into(),
+            msg: format!("{path}: {e}"),
+        })?;
+    }
     if let Some(path) = &plot {
         write_plot(path, &tracks, &gps)?;
         rep.notes.push(format!("plot: {path}"));

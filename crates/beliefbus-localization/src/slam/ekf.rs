@@ -16,7 +16,8 @@
 //! buffer with a capacity that doubles as landmarks are added (amortised
 //! allocation; none in a step that adds no landmark).
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Forced, RangeBearing};
+use super::scan_assoc::ScanAssoc;
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::error::LocalizationError;
 use crate::geometry::{frame_rotation, wrap_angle, Point, Pose};
@@ -261,6 +262,7 @@ pub struct EkfSlam {
     step: usize,
     assoc: Vec<Association>,
     forced: Forced,
+    scan: ScanAssoc,
 }
 
 impl EkfSlam {
@@ -273,6 +275,7 @@ impl EkfSlam {
             step: 0,
             assoc: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
+            scan: ScanAssoc::with_capacity(32),
         })
     }
 }
@@ -313,22 +316,21 @@ impl SlamFilter for EkfSlam {
         let model = self.model;
         let r = model.r();
         self.assoc.clear();
+        self.scan.begin(obs.len());
         for (i, z) in obs.iter().enumerate() {
             let (zp, _, _) = inverse(&f, z);
-            let mut ch = Chooser::new();
             for k in 0..self.state.landmarks() {
                 let m = self.state.landmark(k);
                 if near(m, zp, &model.assoc) {
                     let (nu, hx, hm) = innovation(&f, m, z);
                     let s = self.state.project(&hx, &hm, k) + r;
-                    ch.offer(k, &nu, &s, &model.assoc);
+                    self.scan.offer(i, k, &nu, &s, &model.assoc);
                 }
             }
-            self.assoc.push(
-                self.forced
-                    .get(i, self.state.landmarks())
-                    .unwrap_or_else(|| ch.decide(&model.assoc)),
-            );
+        }
+        let n = self.state.landmarks();
+        for (i, &a) in self.scan.decide(&model.assoc).iter().enumerate() {
+            self.assoc.push(self.forced.get(i, n).unwrap_or(a));
         }
         self.forced.clear();
         for (z, a) in obs.iter().zip(&self.assoc) {
@@ -367,6 +369,10 @@ impl SlamFilter for EkfSlam {
 
     fn force_association(&mut self, a: &[Association]) {
         self.forced.set(a);
+    }
+
+    fn set_exclusion(&mut self, e: super::scan_assoc::Exclusion) {
+        self.scan.exclusive = e;
     }
 
     fn position_spread(&self) -> f64 {

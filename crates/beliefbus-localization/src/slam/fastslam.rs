@@ -18,8 +18,9 @@
 //! S = H_x Σ₁ H_xᵀ + H_m P H_mᵀ + Σ₂. Particles' maps share blocks
 //! ([`super::map`]) so resampling copies are cheap.
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Forced, RangeBearing};
 use super::particles::SlamParticles;
+use super::scan_assoc::ScanAssoc;
 use super::step_setup::{begin_step, Begin, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
@@ -116,6 +117,7 @@ pub struct FastSlam {
     assoc: Vec<Association>,
     forced: Forced,
     shared: bool,
+    scan: ScanAssoc,
 }
 
 impl FastSlam {
@@ -135,6 +137,7 @@ impl FastSlam {
             assoc: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
             shared: false,
+            scan: ScanAssoc::with_capacity(32),
         })
     }
 }
@@ -185,22 +188,20 @@ impl SlamFilter for FastSlam {
             let sx = t * s0 * t.transpose();
             self.assoc.clear();
             let map = &self.set.maps[j];
+            self.scan.begin(obs.len());
             for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
-                let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
                     let m = [lm.m[0], lm.m[1]];
                     if near(m, zp, &model.assoc) {
                         let (nu, hx, hm) = innovation(&f, m, z);
                         let s = hx * sx * hx.transpose() + hm * lm.p * hm.transpose() + r;
-                        ch.offer(k, &nu, &s, &model.assoc);
+                        self.scan.offer(i, k, &nu, &s, &model.assoc);
                     }
                 }
-                self.assoc.push(
-                    self.forced
-                        .get(i, map.len())
-                        .unwrap_or_else(|| ch.decide(&model.assoc)),
-                );
+            }
+            for (i, &a) in self.scan.decide(&model.assoc).iter().enumerate() {
+                self.assoc.push(self.forced.get(i, map.len()).unwrap_or(a));
             }
             let mut lw = 0.0;
             let xi = normal3(rng);

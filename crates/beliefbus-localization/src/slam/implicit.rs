@@ -30,9 +30,10 @@
 //! [`super::implicit_refine`], which redraws the re-observed feature from
 //! all of the particle's sightings of it (docs/slam.md has the figures).
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Forced, RangeBearing};
 use super::joint::{minimise_joint, JointObjective};
 use super::particles::SlamParticles;
+use super::scan_assoc::ScanAssoc;
 use super::step_setup::{begin_step, Begin, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
@@ -68,6 +69,8 @@ pub struct ImplicitSlam {
     new_obs: Vec<RangeBearing>,
     forced: Forced,
     shared: bool,
+    scan: ScanAssoc,
+    assoc: Vec<Association>,
 }
 
 impl ImplicitSlam {
@@ -89,6 +92,8 @@ impl ImplicitSlam {
             new_obs: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
             shared: false,
+            scan: ScanAssoc::with_capacity(32),
+            assoc: Vec::with_capacity(32),
         })
     }
 }
@@ -173,21 +178,23 @@ impl SlamFilter for ImplicitSlam {
             self.new_obs.clear();
             let mut discarded = 0usize;
             let map = &self.set.maps[j];
+            self.scan.begin(obs.len());
             for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
-                let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
                     if near(lm.m, zp, &model.assoc) {
                         let (nu, hx, hm) = innovation(&f, lm.m, z);
                         let s = hx * sx * hx.transpose() + hm * lm.cov * hm.transpose() + r;
-                        ch.offer(k, &nu, &s, &model.assoc);
+                        self.scan.offer(i, k, &nu, &s, &model.assoc);
                     }
                 }
-                match self
-                    .forced
-                    .get(i, map.len())
-                    .unwrap_or_else(|| ch.decide(&model.assoc))
-                {
+            }
+            self.assoc.clear();
+            for (i, &a) in self.scan.decide(&model.assoc).iter().enumerate() {
+                self.assoc.push(self.forced.get(i, map.len()).unwrap_or(a));
+            }
+            for (z, a) in obs.iter().zip(&self.assoc) {
+                match *a {
                     Association::Known(k) => {
                         self.known_obs.push(Observation {
                             range: z.range,

@@ -18,9 +18,10 @@
 //! criticises" in θ); kept as a comparison for reading (i), whose map is
 //! sampled once and never refined.
 
-use super::assoc::{innovation, inverse, near, Association, Chooser, Forced, RangeBearing};
+use super::assoc::{innovation, inverse, near, Association, Forced, RangeBearing};
 use super::fastslam::{init_landmark, update_landmark, Landmark};
 use super::particles::SlamParticles;
+use super::scan_assoc::ScanAssoc;
 use super::step_setup::{begin_step, Begin, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
@@ -69,6 +70,7 @@ pub struct ImplicitRbSlam {
     step: usize,
     assoc: Vec<Association>,
     forced: Forced,
+    scan: ScanAssoc,
     shared: bool,
     terms: Vec<Term>,
 }
@@ -89,6 +91,7 @@ impl ImplicitRbSlam {
             step: 0,
             assoc: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
+            scan: ScanAssoc::with_capacity(32),
             shared: false,
             terms: Vec::with_capacity(32),
         })
@@ -214,22 +217,23 @@ impl SlamFilter for ImplicitRbSlam {
             self.terms.clear();
             let mut lw = 0.0;
             let map = &self.set.maps[j];
+            self.scan.begin(obs.len());
             for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
-                let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
                     let m = [lm.m[0], lm.m[1]];
                     if near(m, zp, &model.assoc) {
                         let (nu, hx, hm) = innovation(&f, m, z);
                         let s = hx * sx * hx.transpose() + hm * lm.p * hm.transpose() + r;
-                        ch.offer(k, &nu, &s, &model.assoc);
+                        self.scan.offer(i, k, &nu, &s, &model.assoc);
                     }
                 }
-                let a = self
-                    .forced
-                    .get(i, map.len())
-                    .unwrap_or_else(|| ch.decide(&model.assoc));
-                if let Association::Known(k) = a {
+            }
+            for (i, &a) in self.scan.decide(&model.assoc).iter().enumerate() {
+                self.assoc.push(self.forced.get(i, map.len()).unwrap_or(a));
+            }
+            for (z, a) in obs.iter().zip(&self.assoc) {
+                if let Association::Known(k) = *a {
                     let lm = map.get(k).expect("k < len");
                     let m = [lm.m[0], lm.m[1]];
                     let (_, _, hm) = innovation(&f, m, z);
@@ -239,7 +243,6 @@ impl SlamFilter for ImplicitRbSlam {
                     lw -= ln2pi + 0.5 * det.ln();
                     self.terms.push(Term { m, z: *z, sinv });
                 }
-                self.assoc.push(a);
             }
             let xi = normal3(rng);
             let xn = if self.terms.is_empty() {

@@ -27,12 +27,13 @@
 //! counted.
 
 use super::arrow::Arrow;
-use super::assoc::{inverse, near, Association, Chooser, Forced, RangeBearing};
+use super::assoc::{inverse, near, Association, Forced, RangeBearing};
 use super::implicit::sample_given_pose;
 use super::joint::JointObjective;
 use super::particles::SlamParticles;
 use super::refine::{backward_term, Objective};
 use super::refined_map::{Past, RefinedLandmark};
+use super::scan_assoc::ScanAssoc;
 use super::step_setup::{begin_step, Begin, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
@@ -110,6 +111,7 @@ pub struct ImplicitRefineSlam {
     /// Per return: its association.
     assoc: Vec<Association>,
     forced: Forced,
+    scan: ScanAssoc,
     shared: bool,
     /// Per block of the arrow: the landmark index (None: new).
     block_lm: Vec<Option<usize>>,
@@ -135,6 +137,7 @@ impl ImplicitRefineSlam {
             arrow: Arrow::default(),
             assoc: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
+            scan: ScanAssoc::with_capacity(32),
             shared: false,
             block_lm: Vec::with_capacity(32),
             zs: Vec::with_capacity(32),
@@ -190,21 +193,19 @@ impl SlamFilter for ImplicitRefineSlam {
             let prec = noise.precision(x[2]);
             self.assoc.clear();
             let map = &self.set.maps[j];
+            self.scan.begin(obs.len());
             for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
-                let mut ch = Chooser::new();
                 for (k, lm) in map.iter().enumerate() {
                     if near(lm.m, zp, &model.assoc) {
                         let (nu, hx, hm) = super::assoc::innovation(&f, lm.m, z);
                         let s = hx * sx * hx.transpose() + hm * lm.cov * hm.transpose() + r;
-                        ch.offer(k, &nu, &s, &model.assoc);
+                        self.scan.offer(i, k, &nu, &s, &model.assoc);
                     }
                 }
-                self.assoc.push(
-                    self.forced
-                        .get(i, map.len())
-                        .unwrap_or_else(|| ch.decide(&model.assoc)),
-                );
+            }
+            for (i, &a) in self.scan.decide(&model.assoc).iter().enumerate() {
+                self.assoc.push(self.forced.get(i, map.len()).unwrap_or(a));
             }
             // One block per distinct known landmark (all its returns), one
             // per new return.

@@ -31,17 +31,22 @@ macro_rules! particle_filter_parts {
             stats: &mut $f.stats,
             forced: &mut $f.forced,
             shared: $f.shared,
+            scan: &mut $f.scan,
         }
     };
 }
 
 /// The diagnostics every particle SLAM filter answers from its particle
-/// set and association settings (fields `set`, `shared`, `forced`,
+/// set and association settings (fields `set`, `shared`, `scan`, `forced`,
 /// `stats`), written once for the four of them.
 macro_rules! particle_set_diagnostics {
     () => {
         fn set_shared_association(&mut self, on: bool) {
             self.shared = on;
+        }
+
+        fn set_exclusion(&mut self, e: $crate::slam::scan_assoc::Exclusion) {
+            self.scan.exclusive = e;
         }
 
         fn force_association(&mut self, a: &[$crate::slam::assoc::Association]) {
@@ -85,10 +90,13 @@ pub mod refine;
 #[cfg(test)]
 mod refine_tests;
 pub mod refined_map;
+pub mod scan_assoc;
 pub mod shared_assoc;
 pub mod step_setup;
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod weight_tests;
 
 use crate::error::LocalizationError;
 use crate::geometry::{Point, Pose};
@@ -190,6 +198,9 @@ pub trait SlamFilter {
     /// Particle filters: associate each return once for the whole set
     /// ([`shared_assoc`]) instead of once per particle; from the next reset.
     fn set_shared_association(&mut self, _on: bool) {}
+    /// Associate a scan's returns jointly, one landmark per return at most
+    /// ([`scan_assoc`]), instead of each return on its own.
+    fn set_exclusion(&mut self, _e: scan_assoc::Exclusion) {}
     /// √(trace of the position covariance) of the current belief (m).
     fn position_spread(&self) -> f64;
     /// Particle filters: label every particle by its index in slot `slot`

@@ -10,7 +10,8 @@
 //! ν̄_k = Σ_j w_j ν_kj,               S̄_k = Σ_j w_j (S_kj + (ν_kj − ν̄_k)(ν_kj − ν̄_k)ᵀ)
 //! ```
 //!
-//! then the shared ML rule ([`super::assoc::Chooser`]) on (ν̄_k, S̄_k). The
+//! then the shared ML rule on (ν̄_k, S̄_k), return by return or for the
+//! scan's returns jointly with mutual exclusion ([`super::scan_assoc`]). The
 //! spread of the particles enters S̄ as EKF-SLAM's pose covariance enters its
 //! S, so after a laser gap a return is matched against where the set as a
 //! whole expects the landmark, not against each particle's one-step
@@ -18,8 +19,9 @@
 //! follow the model exactly for the imposed association (the association
 //! is a function of the data and the previous set, as with any ML rule).
 
-use super::assoc::{innovation, inverse, AssocConfig, Association, Chooser, RangeBearing};
+use super::assoc::{innovation, inverse, AssocConfig, Association, RangeBearing};
 use super::particles::SlamParticles;
+use super::scan_assoc::ScanAssoc;
 use crate::geometry::{frame_rotation, Point, Pose};
 use crate::vehicle::{Control, Ute};
 use nalgebra::{Matrix2, Matrix3, Vector2};
@@ -39,6 +41,29 @@ pub fn shared_association<L: Clone>(
     cfg: &AssocConfig,
     lm: impl Fn(&L) -> (Point, Matrix2<f64>),
 ) -> Option<Association> {
+    let mut scan = ScanAssoc::with_capacity(1);
+    scan.begin(1);
+    shared_offers(set, ute, u, s0, r, z, 0, cfg, &lm, &mut scan)?;
+    Some(scan.decide(cfg)[0])
+}
+
+/// Score return `ret` (`z`) against the set's predictive distribution of
+/// every candidate landmark into `scan`, so that a scan's returns can be
+/// decided jointly ([`ScanAssoc::decide`]); `None` when the particles' maps
+/// differ in length.
+#[allow(clippy::too_many_arguments)]
+pub fn shared_offers<L: Clone>(
+    set: &SlamParticles<L>,
+    ute: &Ute,
+    u: Control,
+    s0: &Matrix3<f64>,
+    r: &Matrix2<f64>,
+    z: &RangeBearing,
+    ret: usize,
+    cfg: &AssocConfig,
+    lm: &impl Fn(&L) -> (Point, Matrix2<f64>),
+    scan: &mut ScanAssoc,
+) -> Option<()> {
     let n = set.maps[0].len();
     if set.maps.iter().any(|m| m.len() != n) {
         return None;
@@ -49,7 +74,6 @@ pub fn shared_association<L: Clone>(
     let fb = ute.predict_mean(&set.x[b], u);
     let (zp, _, _) = inverse(&fb, z);
     let radius = cfg.radius + 3.0 * set.position_spread();
-    let mut ch = Chooser::new();
     for (k, lb) in set.maps[b].iter().enumerate() {
         let (mb, _) = lm(lb);
         if (mb[0] - zp[0]).powi(2) + (mb[1] - zp[1]).powi(2) > radius * radius {
@@ -59,14 +83,14 @@ pub fn shared_association<L: Clone>(
         // normalised weights.
         let (mut nu_bar, mut s_bar) = (Vector2::zeros(), Matrix2::zeros());
         for (j, x) in set.x.iter().enumerate() {
-            let (nu, s) = predicted(ute, u, s0, r, x, set.maps[j].get(k)?, &lm, z);
+            let (nu, s) = predicted(ute, u, s0, r, x, set.maps[j].get(k)?, lm, z);
             nu_bar += set.w[j] * nu;
             s_bar += set.w[j] * (s + nu * nu.transpose());
         }
         s_bar -= nu_bar * nu_bar.transpose();
-        ch.offer(k, &nu_bar, &s_bar, cfg);
+        scan.offer(ret, k, &nu_bar, &s_bar, cfg);
     }
-    Some(ch.decide(cfg))
+    Some(())
 }
 
 /// ν and S of return z for one particle at pose x with landmark l.

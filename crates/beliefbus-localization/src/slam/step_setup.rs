@@ -8,7 +8,8 @@
 
 use super::assoc::{Forced, RangeBearing};
 use super::particles::SlamParticles;
-use super::shared_assoc::shared_association;
+use super::scan_assoc::ScanAssoc;
+use super::shared_assoc::shared_offers;
 use super::{SlamModel, SlamStats};
 use crate::error::LocalizationError;
 use crate::geometry::{Point, Pose};
@@ -55,6 +56,8 @@ pub struct FilterParts<'a, L: Clone> {
     pub stats: &'a mut SlamStats,
     pub forced: &'a mut Forced,
     pub shared: bool,
+    /// The scan's association buffers (and whether returns exclude each other).
+    pub scan: &'a mut ScanAssoc,
 }
 
 /// Start a step of a particle filter; `lm` gives a landmark's position and
@@ -78,13 +81,13 @@ pub fn begin_step<L: Clone>(
     let r = model.r();
     let s0 = noise.chol * noise.chol.transpose();
     if p.shared && p.forced.is_empty() {
-        for z in obs {
-            match shared_association(p.set, &ute, u, &s0, &r, z, &model.assoc, &lm) {
-                Some(a) => p.forced.push(a),
-                None => {
-                    p.forced.clear();
-                    break;
-                }
+        p.scan.begin(obs.len());
+        let aligned = obs.iter().enumerate().all(|(i, z)| {
+            shared_offers(p.set, &ute, u, &s0, &r, z, i, &model.assoc, &lm, p.scan).is_some()
+        });
+        if aligned {
+            for &a in p.scan.decide(&model.assoc) {
+                p.forced.push(a);
             }
         }
     }
