@@ -107,6 +107,20 @@ impl Default for Chooser {
     }
 }
 
+/// The Mahalanobis distance d² = νᵀS⁻¹ν of an innovation and its
+/// log-likelihood log N(ν; 0, S) up to the constant shared by all
+/// candidates, −½d² − ½ log det S; `None` when S is not positive definite
+/// or d² is not finite (the candidate is never chosen).
+pub fn innovation_score(nu: &Vector2<f64>, s: &Matrix2<f64>) -> Option<(f64, f64)> {
+    let det = s[(0, 0)] * s[(1, 1)] - s[(0, 1)] * s[(1, 0)];
+    if !(det > 0.0) {
+        return None;
+    }
+    let inv = Matrix2::new(s[(1, 1)], -s[(0, 1)], -s[(1, 0)], s[(0, 0)]) / det;
+    let d2 = nu.dot(&(inv * nu));
+    d2.is_finite().then(|| (d2, -0.5 * d2 - 0.5 * det.ln()))
+}
+
 impl Chooser {
     pub fn new() -> Self {
         Self {
@@ -117,22 +131,12 @@ impl Chooser {
 
     /// Score candidate k with innovation ν and covariance S.
     pub fn offer(&mut self, k: usize, nu: &Vector2<f64>, s: &Matrix2<f64>, cfg: &AssocConfig) {
-        let det = s[(0, 0)] * s[(1, 1)] - s[(0, 1)] * s[(1, 0)];
-        if !(det > 0.0) {
+        let Some((d2, ll)) = innovation_score(nu, s) else {
             return;
-        }
-        let inv = Matrix2::new(s[(1, 1)], -s[(0, 1)], -s[(1, 0)], s[(0, 0)]) / det;
-        let d2 = nu.dot(&(inv * nu));
-        if !d2.is_finite() {
-            return;
-        }
+        };
         self.min_d2 = self.min_d2.min(d2);
-        if d2 < cfg.gate {
-            // log N(ν; 0, S) up to a constant shared by all candidates.
-            let ll = -0.5 * d2 - 0.5 * det.ln();
-            if self.best.is_none_or(|(_, b)| ll > b) {
-                self.best = Some((k, ll));
-            }
+        if d2 < cfg.gate && self.best.is_none_or(|(_, b)| ll > b) {
+            self.best = Some((k, ll));
         }
     }
 

@@ -102,22 +102,12 @@ impl ScanAssoc {
         s: &Matrix2<f64>,
         cfg: &AssocConfig,
     ) {
-        let det = s[(0, 0)] * s[(1, 1)] - s[(0, 1)] * s[(1, 0)];
-        if !(det > 0.0) {
+        let Some((d2, ll)) = super::assoc::innovation_score(nu, s) else {
             return;
-        }
-        let inv = Matrix2::new(s[(1, 1)], -s[(0, 1)], -s[(1, 0)], s[(0, 0)]) / det;
-        let d2 = nu.dot(&(inv * nu));
-        if !d2.is_finite() {
-            return;
-        }
+        };
         self.min_d2[ret] = self.min_d2[ret].min(d2);
         if d2 < cfg.gate {
-            self.pairs.push(Pair {
-                ret,
-                lm,
-                ll: -0.5 * d2 - 0.5 * det.ln(),
-            });
+            self.pairs.push(Pair { ret, lm, ll });
         }
     }
 
