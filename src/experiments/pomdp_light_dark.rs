@@ -26,12 +26,16 @@
 //!   `solve_s` from the previous size's plans carried over
 //!   ([`warm::carry_plan`]: the policy graph evaluated exactly on the new
 //!   chain, at most [`CARRY_CAP`] nodes; `carried_b0` is its certified
-//!   value at b₀, a floor for `lower_b0`). The chain's step Δt_n shrinks
-//!   as states are added, so a plan that dead-reckons in steps falls short
-//!   of the goal on the finer chain and the carried value is often near
-//!   the stay-put plan's 0; what keeps the larger sizes from starting
-//!   blind is the upper bound's MDP start. The anytime curve solves the
-//!   `anytime_states` POMDP afresh per budget.
+//!   value at b₀, a floor for `lower_b0`). The carried value is near the
+//!   stay-put plan's 0: a plan exploits its own chain (moves at ~0.7 of
+//!   u h, targets snapped onto the goal's one state, exact localisation in
+//!   the light) and loses in the continuous dynamics and on a finer chain
+//!   alike (`carry_check=1`, [`carry`]). What keeps the larger sizes from
+//!   starting blind is the upper bound's MDP start. The anytime curve
+//!   solves the `anytime_states` POMDP afresh per budget.
+//! * Diagnostics (defaults = the thesis's construction): `match_mean`,
+//!   `kappa_drift` (κ_f of the 2-D chain) and `period_s` (one decision
+//!   period at every size, δ = period/2^j).
 //!
 //! The step is the thesis's Δt_n = min_{z,u} Δt(z,u) (no power-of-two
 //! rounding): with σ² ≪ r|u| every control moves about r per Δt(z,u), and
@@ -61,6 +65,8 @@ use rand::{RngExt, SeedableRng};
 use std::path::Path;
 use std::time::Duration;
 
+#[path = "pomdp_light_dark_carry.rs"]
+pub mod carry;
 #[path = "pomdp_light_dark_plot.rs"]
 mod plot;
 pub use plot::{trajectory, Step};
@@ -153,6 +159,13 @@ pub struct Setting {
     pub sigma: f64,
     pub eps: f64,
     pub rate: f64,
+    /// Rows consistent in the mean ([`ChainPomdpSpec::match_mean`]).
+    pub match_mean: bool,
+    /// A decision period fixed across sizes (δ = period/2^j, K = 2^j);
+    /// 0: the thesis's Δt_n per size.
+    pub period: f64,
+    /// κ_f of the 2-D chain's holding time (the thesis: 1).
+    pub kappa_drift: f64,
 }
 
 fn quadratic_control(_z: &[f64], u: &[f64]) -> f64 {
@@ -170,13 +183,17 @@ fn spec_for(
     ChainPomdpSpec {
         controls: controls.to_vec(),
         observations: obs.to_vec(),
-        delta_max: f64::INFINITY,
-        decision_min: 0.0,
+        delta_max: if s.period > 0.0 {
+            s.period
+        } else {
+            f64::INFINITY
+        },
+        decision_min: s.period,
         discount_rate: s.rate,
         start,
         row_flush: 1e-9,
         obs_flush: 1e-6,
-        match_mean: false,
+        match_mean: s.match_mean,
         terminal: Some(Terminal {
             reward: (0..chain.len())
                 .map(|i| {
@@ -259,6 +276,18 @@ pub struct Sized<'a> {
     pub carried_b0: Option<f64>,
     /// Seconds spent carrying and evaluating the previous plans.
     pub carry_s: f64,
+    /// The previous size, solved (none at the first size).
+    pub prev: Option<(&'a ChainPomdp, &'a Solution)>,
+}
+
+/// The 2-D light boxes: beacons (±1.4, ±1.4), half-width 1.2.
+pub fn light_2d() -> Boxes {
+    Boxes(vec![(vec![1.4, 1.4], 1.2), (vec![-1.4, -1.4], 1.2)])
+}
+
+/// The 2-D goal: |x − (1.5, −1.5)|_∞ < 0.2.
+pub fn goal_2d() -> Boxes {
+    Boxes(vec![(vec![1.5, -1.5], 0.2)])
 }
 
 /// The 2-D problem grown over `sizes`, each size solved for `solve_s`
@@ -273,14 +302,16 @@ pub fn two_d(
     mut each: impl FnMut(&Sized<'_>) -> Result<()>,
 ) -> Result<()> {
     let m = LightDark::new(2, s.sigma);
-    let light = Boxes(vec![(vec![1.4, 1.4], 1.2), (vec![-1.4, -1.4], 1.2)]);
-    let goal = Boxes(vec![(vec![1.5, -1.5], 0.2)]);
+    let (light, goal) = (light_2d(), goal_2d());
     let obs = LightDarkObs {
         light: light.clone(),
         eps: s.eps,
     };
     let mut rng: SimRng = SimRng::seed_from_u64(rng::splitmix64(seed ^ 0x2d));
-    let cfg = ChainConfig::gaussian(2).with_near(NearRule::Radius { gamma: 3.0 });
+    let cfg = ChainConfig {
+        kappa_drift: s.kappa_drift,
+        ..ChainConfig::gaussian(2).with_near(NearRule::Radius { gamma: 3.0 })
+    };
     let mut chain = Chain::batch(&m, cfg, &[1.5, -1.5])?;
     let mut touched = Vec::new();
     let mut controls = vec![
@@ -364,6 +395,7 @@ pub fn two_d(
             sol: &sol,
             carried_b0,
             carry_s,
+            prev: prev.as_ref().map(|(c, s)| (c, s)),
         })?;
         prev = Some((cp, sol));
     }
@@ -414,6 +446,10 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             "epsilon",
             "rate",
             "plot",
+            "carry_check",
+            "match_mean",
+            "period_s",
+            "kappa_drift",
         ]
         .contains(&k.as_str())
     });
@@ -427,7 +463,19 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let runs = args.runs.unwrap_or(1000).max(2);
     rep.param("runs", runs);
     rep.param("seed", args.seed);
-    let s = Setting { sigma, eps, rate };
+    let match_mean = p.usize(&mut rep, "match_mean", 0)? > 0;
+    let period = p.f64(&mut rep, "period_s", 0.0)?;
+    anyhow::ensure!(period >= 0.0, "period_s must be non-negative");
+    let kappa_drift = p.f64(&mut rep, "kappa_drift", 1.0)?;
+    anyhow::ensure!(kappa_drift > 0.0, "kappa_drift must be positive");
+    let s = Setting {
+        sigma,
+        eps,
+        rate,
+        match_mean,
+        period,
+        kappa_drift,
+    };
     rep.lead_columns(&[
         "problem",
         "states",
@@ -466,8 +514,16 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     }
     prog.tick();
 
+    let carry_check = p.usize(&mut rep, "carry_check", 0)? > 0;
     two_d(&sizes, &[solve_s], &s, args.seed, false, |z| {
         let cp = z.cp;
+        if let (true, Some(prev)) = (carry_check, z.prev) {
+            let rows = carry::diagnose(prev, (cp, z.sol), z.carried_b0, &s, runs, args.seed);
+            for r in rows {
+                eprintln!("{r:?}");
+                rep.results.push(r);
+            }
+        }
         let (m, se) = expected_reward(cp, &z.sol.policy, runs, args.seed)?;
         let mut row = Row::new("chain-pomdp")
             .text("problem", "2-D")

@@ -485,6 +485,26 @@ const POMDP_LIGHT_DARK: &[ParamDoc] = &[
         "(none)",
         "write the 1-D belief trajectory to this SVG file",
     ),
+    p(
+        "carry_check",
+        "0",
+        "1: also value each previous plan off its chain (continuous simulation, carried)",
+    ),
+    p(
+        "match_mean",
+        "0",
+        "1: chain rows consistent in the mean (E[dz] = u h at every state)",
+    ),
+    p(
+        "period_s",
+        "0",
+        "decision period fixed across sizes (s); 0: the chain step of each size",
+    ),
+    p(
+        "kappa_drift",
+        "1",
+        "kappa_f of the 2-D chain's holding time r^2/(kappa_F |FF'| + kappa_f r |f|)",
+    ),
 ];
 
 /// Every experiment, in the order `beliefbus experiment --list` shows them.

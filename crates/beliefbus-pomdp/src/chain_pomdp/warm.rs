@@ -211,7 +211,8 @@ pub struct Solved<'a> {
 /// node (a node acts as before and moves to the same successor), each new
 /// observation read as the nearest old observation point. The nodes are
 /// taken breadth first from the policy's vectors in order of their value
-/// at the previous b₀, at most `cap`; a successor left out goes to one
+/// at the previous b₀: all nodes of the first (best) plan, then others up
+/// to `cap` in all; a successor left out goes to one
 /// blind node repeating the action with the best worst-case reward. The
 /// controller is evaluated on `next` for at most `budget` (or until the
 /// change is below `tol`) from the previous vectors moved by nearest
@@ -254,12 +255,18 @@ pub fn carry_plan(
     let mut local: HashMap<u32, u32> = HashMap::new();
     let mut order: Vec<u32> = Vec::new();
     let mut queue = std::collections::VecDeque::new();
-    'roots: for &(_, k) in &roots {
+    'roots: for (r, &(_, k)) in roots.iter().enumerate() {
         let root = plan.resolve(prev.plan_nodes[k]);
         if local.contains_key(&root) {
             continue;
         }
-        if order.len() >= cap {
+        // The plan best at the previous b₀ is carried whole, whatever the
+        // cap: cut off, its continuation falls to the blind leaf and the
+        // carried value at b₀ collapses to the leaf's (seen at 150 → 300
+        // light-dark states: a 271-node plan worth 416 carried with a cap
+        // of 256 was worth 0 on its own chain).
+        let limit = if r == 0 { usize::MAX } else { cap };
+        if order.len() >= limit {
             break;
         }
         local.insert(root, order.len() as u32);
@@ -271,7 +278,7 @@ pub fn carry_plan(
                 if plan.action(m) >= p.n_actions() || local.contains_key(&m) {
                     continue;
                 }
-                if order.len() >= cap {
+                if order.len() >= limit {
                     break 'roots;
                 }
                 local.insert(m, order.len() as u32);

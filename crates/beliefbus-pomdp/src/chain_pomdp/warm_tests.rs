@@ -166,3 +166,32 @@ fn plans_carried_to_their_own_problem_keep_the_lower_bound() {
     );
     assert!(v <= pair.s1.upper + 1e-9);
 }
+
+#[test]
+fn a_cap_below_the_best_plans_size_still_carries_that_plan_whole() {
+    let pair = refined_pair();
+    let solved = Solved {
+        cp: &pair.p1,
+        policy: &pair.s1.policy,
+        plan: &pair.s1.plan,
+        plan_nodes: &pair.s1.plan_nodes,
+    };
+    let b0 = &pair.p1.pomdp.start;
+    let (k, _) = pair.s1.policy.best_dense(b0);
+    let (order, _, _) = crate::solver::graph::reachable(&pair.s1.plan, pair.s1.plan_nodes[k]);
+    assert!(order.len() > 2, "the best plan has {} nodes", order.len());
+    // Carried onto its own problem with a cap of one node, the best plan
+    // is worth exactly what a dense solve of its controller gives, which
+    // is at least the solve's V̲(b₀) (cut at the cap it would fall to the
+    // blind leaf).
+    let c = carry_plan(&solved, &pair.p1, 1, Duration::from_secs(5), 1e-11);
+    assert!(c.len() > order.len(), "{} nodes carried", c.len());
+    let exact = best_at(&exact_value(&pair.p1.pomdp, &c), b0);
+    let v = best_at(&c.values, b0);
+    assert!((v - exact).abs() < 1e-6, "certified {v}, exact {exact}");
+    assert!(
+        exact >= pair.s1.lower - 1e-6,
+        "plans worth {exact} at b0, the solve claimed {}",
+        pair.s1.lower
+    );
+}
