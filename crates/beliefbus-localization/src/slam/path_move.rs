@@ -41,7 +41,7 @@
 use super::assoc::RangeBearing;
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
-use crate::geometry::{Point, Pose};
+use crate::geometry::{wrap_angle, Point, Pose};
 use crate::laser::{term_cost, LaserNoise, Observation};
 use crate::vehicle::{Control, StepNoise, Ute};
 use beliefbus_core::rng::SimRng;
@@ -233,11 +233,14 @@ impl PathWindow {
         let s = self.slot(age);
         let prev = self.pose(j, age + 1);
         let d = self.steps[s].expect("a kept pose has its step");
-        let r = x - d.ute.predict_mean(&prev, d.u);
+        let mut r = x - d.ute.predict_mean(&prev, d.u);
+        // The heading residual wrapped as in the filters' own motion term.
+        r[2] = wrap_angle(r[2]);
         let mut e = 0.5 * r.dot(&(d.noise.precision(prev[2]) * r));
         if age > 0 {
             let dn = self.steps[self.slot(age - 1)].expect("a kept pose has its step");
-            let rn = self.pose(j, age - 1) - dn.ute.predict_mean(x, dn.u);
+            let mut rn = self.pose(j, age - 1) - dn.ute.predict_mean(x, dn.u);
+            rn[2] = wrap_angle(rn[2]);
             e += 0.5 * rn.dot(&(dn.noise.precision(x[2]) * rn));
         }
         let c = self.count[j * self.slots + s] as usize;
