@@ -12,6 +12,10 @@
 //!   (proposal including the observation), per-landmark EKFs;
 //! - [`ekf::EkfSlam`]: the joint-state EKF, augmented on a new landmark.
 //!
+//! [`implicit::ImplicitSlam`] can renew its particles' recent paths after
+//! each resampling by Metropolis–Hastings moves ([`path_move`], off by
+//! default).
+//!
 //! Every filter associates each return by the one maximum-likelihood rule
 //! with the same gates ([`assoc`]), predicts with the same kinematics (E10)
 //! and noise Σ₁ = T(β) Σ₀(u) T(β)ᵀ every odometry step, and weighs returns
