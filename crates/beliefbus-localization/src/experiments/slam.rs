@@ -182,6 +182,10 @@ pub const PARAMS: &[ParamDoc] = &[
         "(none)",
         "write an SVG of time per update against error (ours and the paper's) here, and one of data set 0's paths and maps beside it (<name>-paths.svg)",
     ),
+    p("move", "off", "'window': after each resampling, Metropolis-Hastings moves of every particle's last move_window poses with its landmarks held (slam::path_move; implicit only, the other methods ignore it); 'off': none"),
+    p("move_window", "10", "poses moved per particle by the resample-move (W)"),
+    p("move_sweeps", "1", "sweeps over the window per resample-move"),
+    p("move_scale", "0.5", "the resample-move's random-walk step relative to the step noise"),
 ];
 
 /// Table 6 of the paper: samples, then (time ms, error %) of FastSLAM,
@@ -247,6 +251,8 @@ pub struct Setup {
     pub assoc: AssocMode,
     /// Write each data set's figures per method here (CSV).
     pub per_run: Option<String>,
+    /// The resample-move (implicit only).
+    pub path_move: Option<crate::slam::path_move::MoveConfig>,
 }
 
 /// Parse the parameters.
@@ -355,6 +361,7 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
         plot,
         assoc: AssocMode::parse(ps.raw("association").unwrap_or("ml"))?,
         per_run: ps.raw("per_run").map(str::to_string),
+        path_move: super::slam_run::parse_move(&ps)?,
     })
 }
 
@@ -414,6 +421,7 @@ pub fn run(
         length += cp.path_length();
         for (i, &(name, m)) in s.methods.iter().enumerate() {
             let mut f = make_filter(name, m, s.model, s.ess_threshold, s.newton)?;
+            f.set_path_move(s.path_move)?;
             let mut est = vec![Pose::zeros(); cp.steps() + 1];
             let mut rng = stream(seed, 1_000_000 + r);
             let (met, map) = run_one(
@@ -454,6 +462,7 @@ pub fn run(
         "time_ms_se",
     ]);
     rep.param("runs", runs);
+    rep.param("move", super::slam_run::move_name(s.path_move));
     rep.param("seed", seed);
     rep.param("data_dir", s.data_dir.display().to_string());
     rep.param("start_time_s", s.carpark.start_time);
@@ -490,6 +499,7 @@ pub fn run(
         let (me, _) = col(|x| x.map_err_m);
         let (rr, _) = col(|x| x.resample_rate);
         let (sp, _) = col(|x| x.spread_m);
+        let (ma, _) = col(|x| x.move_accept);
         let anc = |k: usize| -> f64 {
             let v: Vec<f64> = per[i].iter().map(|x| x.ancestors[k]).collect();
             mean_se(&v).0
@@ -512,6 +522,7 @@ pub fn run(
                 .num("ancestors_mid", anc(1))
                 .num("ancestors_10s", anc(2))
                 .num("ancestors_1s", anc(3))
+                .num("move_accept", ma)
                 .num("time_s", ts),
         );
     }

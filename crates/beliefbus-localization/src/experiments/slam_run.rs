@@ -6,6 +6,7 @@
 //! at the start, half way, 10 s and 1 s before the end still have
 //! descendants at the end (path and map depletion).
 
+use super::params::Params;
 use super::slam_noise::map_error;
 use crate::carpark::CarPark;
 use crate::error::LocalizationError;
@@ -17,6 +18,7 @@ use crate::slam::fastslam::{FastSlam, Version};
 use crate::slam::implicit::ImplicitSlam;
 use crate::slam::implicit_rb::ImplicitRbSlam;
 use crate::slam::implicit_refine::ImplicitRefineSlam;
+use crate::slam::path_move::MoveConfig;
 use crate::slam::{SlamFilter, SlamModel};
 use beliefbus_core::rng::SimRng;
 use std::time::Instant;
@@ -36,6 +38,36 @@ pub fn make_filter(
         "fastslam1" => Box::new(FastSlam::new(model, Version::One, m, ess)?),
         "fastslam2" => Box::new(FastSlam::new(model, Version::Two, m, ess)?),
         _ => Box::new(EkfSlam::new(model)?),
+    })
+}
+
+/// The resample-move settings from the parameters (`None`: off).
+pub fn parse_move(ps: &Params) -> Result<Option<MoveConfig>, LocalizationError> {
+    match ps.raw("move").unwrap_or("off") {
+        "off" => Ok(None),
+        "window" => {
+            let c = MoveConfig {
+                window: ps.get("move_window", 10usize)?,
+                sweeps: ps.get("move_sweeps", 1usize)?,
+                scale: ps.get("move_scale", 0.5)?,
+            };
+            c.validate()?;
+            Ok(Some(c))
+        }
+        v => Err(LocalizationError::Param {
+            key: "move".into(),
+            msg: format!("'{v}': need 'off' or 'window'"),
+        }),
+    }
+}
+
+/// The resample-move setting as reported.
+pub fn move_name(c: Option<MoveConfig>) -> String {
+    c.map_or("off".into(), |c| {
+        format!(
+            "window W={} sweeps={} scale={}",
+            c.window, c.sweeps, c.scale
+        )
     })
 }
 
@@ -91,6 +123,8 @@ pub struct RunMetrics {
     /// Particles of the start, the middle, 10 s and 1 s before the end with
     /// descendants at the end (NaN for a Gaussian filter).
     pub ancestors: [f64; 4],
+    /// Accepted fraction of the resample-move's proposals (NaN: no move).
+    pub move_accept: f64,
 }
 
 /// The steps at which the ancestor slots 1–3 are labelled (slot 0: the
@@ -150,6 +184,14 @@ pub fn run_one(
             resample_rate: st.resamplings as f64 / st.updates.max(1) as f64,
             spread_m: (spread2 / n).sqrt(),
             ancestors: [anc(0), anc(1), anc(2), anc(3)],
+            move_accept: {
+                let (p, a) = f.move_counts();
+                if p == 0 {
+                    f64::NAN
+                } else {
+                    a as f64 / p as f64
+                }
+            },
         },
         map,
     ))

@@ -60,6 +60,10 @@ pub const PARAMS: &[ParamDoc] = &[
     p("exclusive", "off", "'next' or 'drop': a scan's returns are associated jointly, one landmark per return at most, a return beaten to its landmark taking its next candidate or dropped (slam::scan_assoc), by every method; 'off': each return on its own"),
     p("per_run", "(none)", "write each seed's rms_m and p95_m per method to this CSV (for paired comparisons)"),
     p("plot", "(none)", "write an SVG of each method's path and map over GPS and dead reckoning here"),
+    p("move", "off", "'window': after each resampling, Metropolis-Hastings moves of every particle's last move_window poses with its landmarks held (slam::path_move; implicit only, the other methods ignore it); 'off': none"),
+    p("move_window", "10", "poses moved per particle by the resample-move (W)"),
+    p("move_sweeps", "1", "sweeps over the window per resample-move"),
+    p("move_scale", "0.5", "the resample-move's random-walk step relative to the step noise"),
 ];
 
 /// Figures of one run: RMS, p95, landmarks, ms per step, seconds, counters.
@@ -180,8 +184,9 @@ pub fn run(
         key: "exclusive".into(),
         msg: format!("'{exclusive}': need off, next or drop"),
     })?;
+    let path_move = super::slam_run::parse_move(&ps)?;
     let per_run_path = ps.raw("per_run").map(str::to_string);
-    let mut per_run = String::from("method,samples,run,rms_m,p95_m,landmarks\n");
+    let mut per_run = String::from("method,samples,run,rms_m,p95_m,landmarks,move_accept\n");
     let plot = ps.raw("plot").map(str::to_string);
     let runs = runs.unwrap_or(1).max(1);
 
@@ -248,6 +253,7 @@ pub fn run(
     let mut rep = Report::new("slam-victoria-park");
     rep.param("association_given", if shared { "shared" } else { "ml" });
     rep.param("exclusive", exclusive.name());
+    rep.param("move", super::slam_run::move_name(path_move));
     rep.lead_columns(&["samples", "rms_m", "p95_m", "landmarks", "time_ms"]);
     let (dr_rms, dr_p95) = rms_p95(&gps_errors(&times, &dr, &gps));
     rep.results.push(
@@ -275,6 +281,7 @@ pub fn run(
                 let mut f = make_filter(name, m, model, ess, NewtonSettings::default())?;
                 f.set_shared_association(shared);
                 f.set_exclusion(exclusive);
+                f.set_path_move(path_move)?;
                 f.reset(&start);
                 let mut rng = stream(seed, r);
                 let mut path = vec![start; times.len()];
@@ -287,7 +294,12 @@ pub fn run(
                 let (rms, p95) = rms_p95(&gps_errors(&times, &path, &gps));
                 let map = f.map();
                 let st = f.stats();
-                per_run.push_str(&format!("{name},{m},{r},{rms},{p95},{}\n", map.len()));
+                let (mp, ma) = f.move_counts();
+                per_run.push_str(&format!(
+                    "{name},{m},{r},{rms},{p95},{},{}\n",
+                    map.len(),
+                    ma as f64 / mp.max(1) as f64
+                ));
                 figs.push((
                     rms,
                     p95,

@@ -33,6 +33,7 @@
 use super::assoc::{innovation, inverse, near, Association, Forced, RangeBearing};
 use super::joint::{minimise_joint, JointObjective};
 use super::particles::SlamParticles;
+use super::path_move::{MoveConfig, PathWindow};
 use super::scan_assoc::ScanAssoc;
 use super::step_setup::{begin_step, Begin, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
@@ -71,6 +72,7 @@ pub struct ImplicitSlam {
     shared: bool,
     scan: ScanAssoc,
     assoc: Vec<Association>,
+    mover: Option<PathWindow>,
 }
 
 impl ImplicitSlam {
@@ -94,6 +96,7 @@ impl ImplicitSlam {
             shared: false,
             scan: ScanAssoc::with_capacity(32),
             assoc: Vec::with_capacity(32),
+            mover: None,
         })
     }
 }
@@ -142,6 +145,23 @@ impl SlamFilter for ImplicitSlam {
         self.stats = SlamStats::default();
         self.step = 0;
         self.forced.clear();
+        if let Some(w) = self.mover.as_mut() {
+            w.reset(start);
+        }
+    }
+
+    fn set_path_move(&mut self, cfg: Option<MoveConfig>) -> Result<bool, LocalizationError> {
+        self.mover = match cfg {
+            Some(c) => Some(PathWindow::new(self.set.len(), c)?),
+            None => None,
+        };
+        Ok(true)
+    }
+
+    fn move_counts(&self) -> (usize, usize) {
+        self.mover
+            .as_ref()
+            .map_or((0, 0), |w| (w.proposed, w.accepted))
     }
 
     fn step(
@@ -164,9 +184,21 @@ impl SlamFilter for ImplicitSlam {
             motion_norm,
             s0,
         } = match begin_step(parts, u, dt, obs, rng, |l: &SampledLandmark| (l.m, l.cov))? {
-            Begin::Predicted(estimate) => return Ok(estimate),
+            Begin::Predicted(estimate) => {
+                if let Some(w) = self.mover.as_mut() {
+                    let (ute, noise) = self.model.step_noise(u, dt)?;
+                    w.advance(ute, u, noise);
+                    for (j, x) in self.set.x.iter().enumerate() {
+                        w.set_pose(j, *x);
+                    }
+                }
+                return Ok(estimate);
+            }
             Begin::Update(c) => c,
         };
+        if let Some(w) = self.mover.as_mut() {
+            w.advance(ute, u, noise);
+        }
         for j in 0..self.set.len() {
             let x = self.set.x[j];
             let f = ute.predict_mean(&x, u);
@@ -196,6 +228,9 @@ impl SlamFilter for ImplicitSlam {
             for (z, a) in obs.iter().zip(&self.assoc) {
                 match *a {
                     Association::Known(k) => {
+                        if let Some(w) = self.mover.as_mut() {
+                            w.add_sighting(j, k, *z);
+                        }
                         self.known_obs.push(Observation {
                             range: z.range,
                             bearing: z.bearing,
@@ -211,6 +246,14 @@ impl SlamFilter for ImplicitSlam {
             self.stats.new += self.new_obs.len();
             self.stats.discarded += discarded;
             let mut lw = discarded as f64 * log_new;
+            // The i-th new return becomes landmark base + i whichever way
+            // it is drawn below.
+            if let Some(w) = self.mover.as_mut() {
+                let base = map.len();
+                for (i, z) in self.new_obs.iter().enumerate() {
+                    w.add_sighting(j, base + i, *z);
+                }
+            }
             let mut new_start = 0;
             let xn;
             if !self.known_obs.is_empty() {
@@ -301,9 +344,27 @@ impl SlamFilter for ImplicitSlam {
             }
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
+            if let Some(w) = self.mover.as_mut() {
+                w.set_pose(j, xn);
+            }
         }
         self.forced.clear();
+        let before = self.set.resamplings;
         self.set.reweight(step, rng)?;
+        if let Some(w) = self.mover.as_mut() {
+            if self.set.resamplings > before {
+                w.resample(self.set.ancestors());
+                for j in 0..self.set.len() {
+                    let map = &self.set.maps[j];
+                    self.set.x[j] = w.move_particle(
+                        j,
+                        &model.laser,
+                        |k| map.get(k).expect("a sighting's landmark is in the map").m,
+                        rng,
+                    );
+                }
+            }
+        }
         Ok(self.set.estimate())
     }
 

@@ -12,6 +12,10 @@
 //!   (proposal including the observation), per-landmark EKFs;
 //! - [`ekf::EkfSlam`]: the joint-state EKF, augmented on a new landmark.
 //!
+//! [`implicit::ImplicitSlam`] can renew its particles' recent paths after
+//! each resampling by Metropolis–Hastings moves ([`path_move`], off by
+//! default).
+//!
 //! Every filter associates each return by the one maximum-likelihood rule
 //! with the same gates ([`assoc`]), predicts with the same kinematics (E10)
 //! and noise Σ₁ = T(β) Σ₀(u) T(β)ᵀ every odometry step, and weighs returns
@@ -86,6 +90,9 @@ pub mod implicit_refine;
 pub mod joint;
 pub mod map;
 pub mod particles;
+pub mod path_move;
+#[cfg(test)]
+mod path_move_tests;
 pub mod refine;
 #[cfg(test)]
 mod refine_tests;
@@ -195,6 +202,19 @@ pub trait SlamFilter {
     /// Impose the association of the next step's returns, one per return,
     /// in place of the ML rule (the known-association ablation).
     fn force_association(&mut self, a: &[assoc::Association]);
+    /// Resample-move: after each resampling, move every particle's last
+    /// poses by Metropolis–Hastings ([`path_move`]); `None` turns it off.
+    /// Whether the filter has such a move (`false`: the setting is ignored).
+    fn set_path_move(
+        &mut self,
+        _cfg: Option<path_move::MoveConfig>,
+    ) -> Result<bool, LocalizationError> {
+        Ok(false)
+    }
+    /// Moves proposed and accepted by the resample-move so far.
+    fn move_counts(&self) -> (usize, usize) {
+        (0, 0)
+    }
     /// Particle filters: associate each return once for the whole set
     /// ([`shared_assoc`]) instead of once per particle; from the next reset.
     fn set_shared_association(&mut self, _on: bool) {}

@@ -126,6 +126,11 @@ impl<L: Clone> SlamParticles<L> {
         Ok(s.ess)
     }
 
+    /// The ancestor of each particle at the last resampling.
+    pub fn ancestors(&self) -> &[usize] {
+        &self.anc
+    }
+
     /// Weighted mean pose (circular mean of the heading).
     pub fn estimate(&self) -> Pose {
         crate::geometry::mean_pose(&self.x, &self.w)

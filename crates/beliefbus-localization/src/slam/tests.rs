@@ -266,6 +266,37 @@ fn implicit_slam_error_falls_with_samples() {
     });
 }
 
+/// With the resample-move on, implicit SLAM still improves with samples,
+/// and the move does run (proposals made, some but not all accepted).
+#[test]
+fn implicit_slam_with_resample_move_error_falls_with_samples() {
+    let cfg = super::path_move::MoveConfig {
+        window: 10,
+        sweeps: 1,
+        scale: 0.5,
+    };
+    let make = move |m: usize| -> Box<dyn SlamFilter> {
+        let mut f = ImplicitSlam::new(model(), m, 0.5, NewtonSettings::default()).unwrap();
+        assert!(f.set_path_move(Some(cfg)).unwrap());
+        Box::new(f)
+    };
+    assert_falls("implicit with move", &make);
+    let rec = circles(30.0);
+    let ccfg = CarParkConfig {
+        start_time: 0.0,
+        duration: 30.0,
+        motion: scaled(1e-3),
+        truth_noise: 1.0,
+        ..Default::default()
+    };
+    let cp = CarPark::generate(&rec, &ccfg, &mut stream(11, 0)).unwrap();
+    let picks = pick_one_per_scan(&cp, &mut stream(12, 0));
+    let mut f = make(20);
+    run_carpark(f.as_mut(), &cp, &picks, &mut stream(13, 0), |_, _| {}).unwrap();
+    let (p, a) = f.move_counts();
+    assert!(p > 0 && a > 0 && a < p, "{a} of {p} moves accepted");
+}
+
 #[test]
 fn fastslam1_error_falls_with_samples() {
     assert_falls("fastslam1", &|m| {
