@@ -33,6 +33,10 @@
 //!   alike (`carry_check=1`, [`carry`]). What keeps the larger sizes from
 //!   starting blind is the upper bound's MDP start. The anytime curve
 //!   solves the `anytime_states` POMDP afresh per budget.
+//! * Every size's policy is also run in the continuous problem on a belief
+//!   the chain filter tracks from real-valued measurements, as the live
+//!   controller runs it (`continuous` ± s.e., `goal_frac`; [`continuous`]):
+//!   the one yardstick that does not change with the chain.
 //! * Diagnostics (defaults = the thesis's construction): `match_mean`,
 //!   `kappa_drift` (κ_f of the 2-D chain) and `period_s` (one decision
 //!   period at every size, δ = period/2^j).

@@ -119,6 +119,7 @@ pub fn evaluate(
                     .iter()
                     .map(|(c, _)| inf_norm(c, &x))
                     .fold(f64::INFINITY, f64::min);
+                // y is free at the end of the episode: the belief's mean.
                 for (i, yi) in y.iter_mut().enumerate() {
                     *yi = (0..cp.n_chain()).map(|z| b[z] * cp.state(z)[i]).sum();
                 }
