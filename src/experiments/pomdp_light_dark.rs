@@ -261,6 +261,7 @@ fn continuous_value(
     dim: usize,
     runs: usize,
     seed: u64,
+    chain_truth: bool,
 ) -> continuous::Outcome {
     let (light, goal, start) = if dim == 1 {
         (
@@ -284,6 +285,7 @@ fn continuous_value(
         obs: &obs,
         goal: &goal,
         start,
+        chain_truth,
     };
     let horizon = beliefbus_pomdp::simulate::horizon(&cp.pomdp, 1e-2);
     continuous::evaluate(cp, policy, &p, runs, horizon, seed)
@@ -539,7 +541,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let (m1, se1) = expected_reward(&cp1, &sol1.policy, runs, args.seed)?;
     let traj = trajectory(&cp1, &sol1.policy, args.seed, 200);
     let light_first = plot::visits_light_before_goal(&cp1, &traj);
-    let c1 = continuous_value(&cp1, &sol1.policy, &s, 1, runs, args.seed);
+    let c1 = continuous_value(&cp1, &sol1.policy, &s, 1, runs, args.seed, false);
     rep.results.push(
         Row::new("chain-pomdp")
             .text("problem", "1-D")
@@ -577,8 +579,9 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         }
         let (m, se) = expected_reward(cp, &z.sol.policy, runs, args.seed)?;
         let tc = std::time::Instant::now();
-        let c = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed);
+        let c = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, false);
         let continuous_s = tc.elapsed().as_secs_f64();
+        let on_chain = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, true);
         let mut row = Row::new("chain-pomdp")
             .text("problem", "2-D")
             .int("states", cp.n_chain() as u64)
@@ -593,6 +596,9 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             .num("declare_dist", c.declare_dist)
             .num("belief_err", c.belief_err)
             .num("continuous_s", continuous_s)
+            .num("chain_truth", on_chain.mean)
+            .num("chain_truth_se", on_chain.std_err)
+            .num("chain_truth_goal_frac", on_chain.goal_frac)
             .num("lower_b0", z.sol.lower)
             .num("upper_b0", z.sol.upper)
             .num("period_s", cp.period)

@@ -47,6 +47,11 @@ pub struct Problem<'a> {
     pub obs: &'a LightDarkObs,
     pub goal: &'a Boxes,
     pub start: Start,
+    /// Replace the truth by the chain itself (x₀ ~ b₀ on the states, each
+    /// period a draw from T(·|z, a)): the model the policy was solved for,
+    /// so that the same filter and lookup can be checked where the policy
+    /// is known to work.
+    pub chain_truth: bool,
 }
 
 /// Mean discounted reward with its standard error, and the fraction of
@@ -107,6 +112,11 @@ pub fn evaluate(
             };
             *xi = v.clamp(-2.0, 2.0);
         }
+        let mut z = 0usize;
+        if p.chain_truth {
+            z = draw(&cp.pomdp.start, r_start.random::<f64>());
+            x.copy_from_slice(cp.state(z));
+        }
         b.copy_from_slice(&cp.pomdp.start);
         let (mut total, mut disc) = (0.0, 1.0);
         for _ in 0..horizon {
@@ -130,7 +140,12 @@ pub fn evaluate(
                 break;
             };
             total += disc * cp.pomdp.reward[a][0];
-            for _ in 0..m {
+            if p.chain_truth {
+                let (cols, vals) = cp.pomdp.trans[a].row(z);
+                z = cols[draw(vals, r_dyn.random::<f64>())] as usize;
+                x.copy_from_slice(cp.state(z));
+            }
+            for _ in 0..m * usize::from(!p.chain_truth) {
                 for i in 0..d {
                     let v = x[i]
                         + u[i] * de
@@ -172,4 +187,16 @@ pub fn evaluate(
         declare_dist: dist / declared.max(1) as f64,
         belief_err: berr / declared.max(1) as f64,
     }
+}
+
+/// The index where the cumulative sum of `w` passes `u`·Σw.
+fn draw(w: &[f64], u: f64) -> usize {
+    let mut r = u * w.iter().sum::<f64>();
+    for (j, &wj) in w.iter().enumerate() {
+        if r < wj {
+            return j;
+        }
+        r -= wj;
+    }
+    w.len() - 1
 }

@@ -133,6 +133,7 @@ fn declaring_at_once_in_continuous_space_earns_the_gaussian_goal_probability() {
             mean: vec![1.5, -1.5],
             std,
         },
+        chain_truth: false,
     };
     let runs = 4000;
     let out = continuous::evaluate(&cp, &constant_policy(&cp, 0), &p, runs, 50, 7);
@@ -166,6 +167,7 @@ fn never_declaring_costs_exactly_the_discounted_control_cost() {
         obs: &obs,
         goal: &goal,
         start: continuous::Start::Uniform { lo: -2.0, hi: 2.0 },
+        chain_truth: false,
     };
     let horizon = 37;
     let out = continuous::evaluate(&cp, &constant_policy(&cp, a), &p, 20, horizon, 1);
@@ -192,7 +194,7 @@ fn one_d_policy_on_a_tracked_belief_overshoots_the_goal_as_the_live_sde_plant_do
     // 0.2 cell, and dead reckoning from the light overshoots ±0.1. The
     // evaluator must agree: 0/69 puts the goal fraction below 4.3 % at
     // 95 %, and 400 runs here have s.e. ≤ 1.5 %.
-    let out = continuous_value(&cp, &sol.policy, &s, 1, 400, 5);
+    let out = continuous_value(&cp, &sol.policy, &s, 1, 400, 5, false);
     assert!(out.goal_frac < 0.1, "{out:?}");
     // The agent still localises and declares (it does not wander off):
     // nearly every episode ends with the terminal action.
@@ -201,5 +203,13 @@ fn one_d_policy_on_a_tracked_belief_overshoots_the_goal_as_the_live_sde_plant_do
     assert!(
         chain_value > 0.0 && out.mean < 0.0,
         "{chain_value} vs {out:?}"
+    );
+    // The same filter and lookup with the chain as the truth (the live
+    // `chain` plant: ≥ 98 % of episodes in the goal): the loss above is
+    // the system's, not the evaluator's.
+    let on_chain = continuous_value(&cp, &sol.policy, &s, 1, 400, 5, true);
+    assert!(
+        on_chain.goal_frac >= 0.9 && on_chain.mean > 0.0,
+        "{on_chain:?}"
     );
 }
