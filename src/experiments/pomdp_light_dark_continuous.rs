@@ -1,0 +1,202 @@
+//! What a solved light-dark policy is worth in the continuous problem when
+//! run the way the live `pomdp` controller runs it: the α-vector policy's
+//! argmax at a belief over the chain's states that a Bayes filter tracks
+//! from the real-valued measurements (thesis 000 §4.7.2; the chain filter of
+//! §3 as the belief).
+//!
+//! ```text
+//! truth:   x ← clamp(x + u δ_e + σ √δ_e ξ),  ξ ~ N(0, I)    (Euler–Maruyama, m = K steps of δ_e = h/K per decision)
+//! measure: y = x_{k+1} + G(x_{k+1}) v,  v ~ N(0, I),  G = ε in the light, 1/ε in the dark
+//! filter:  b̄(z') = Σ_z b(z) T(z'|z, a_k),  b_{k+1}(z') ∝ b̄(z') p(y | z')     (ChainPomdp::update)
+//! act:     a_k = action(argmax_α α·b_k)
+//! reward:  Σ_k γ^k R(a_k) with R the chain POMDP's −|u|² h, and ±1000 by the true x at the terminal action
+//! ```
+//!
+//! b₀ is the chain POMDP's own start; the true x₀ is drawn from the
+//! continuous start distribution it discretises. The period h, the controls,
+//! the discount and the control costs are the chain POMDP's, so the only
+//! difference from the chain's own evaluation is that the truth and the
+//! measurements are continuous — the value every size approximates, on one
+//! yardstick. The filter keeps its prediction when every likelihood
+//! underflows (as the live filter does).
+//!
+//! Run `i` draws from random stream `(seed, i)` — split into the start,
+//! the dynamics noise and the measurement noise — so every size sees the
+//! same x₀ and the same seeds (common random numbers; the noise sequences
+//! coincide only as far as the sizes' periods do).
+
+use super::{Boxes, LightDarkObs};
+use crate::rng;
+use beliefbus_pomdp::chain_pomdp::ChainPomdp;
+use beliefbus_pomdp::AlphaPolicy;
+use rand::RngExt;
+use rand_distr::StandardNormal;
+
+/// The continuous start distribution (clamped to the domain [−2, 2]^d).
+#[derive(Clone, Debug)]
+pub enum Start {
+    /// N(mean, std² I).
+    Gaussian { mean: Vec<f64>, std: f64 },
+    /// Uniform on [lo, hi]^d.
+    Uniform { lo: f64, hi: f64 },
+}
+
+/// The continuous problem the chain POMDP discretises.
+pub struct Problem<'a> {
+    pub sigma: f64,
+    pub obs: &'a LightDarkObs,
+    pub goal: &'a Boxes,
+    pub start: Start,
+    /// Replace the truth by the chain itself (x₀ ~ b₀ on the states, each
+    /// period a draw from T(·|z, a)): the model the policy was solved for,
+    /// so that the same filter and lookup can be checked where the policy
+    /// is known to work.
+    pub chain_truth: bool,
+}
+
+/// Mean discounted reward with its standard error, and the fraction of
+/// episodes that end with the terminal action inside the goal.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Outcome {
+    pub mean: f64,
+    pub std_err: f64,
+    pub goal_frac: f64,
+    /// Episodes that took the terminal action at all.
+    pub declared_frac: f64,
+    /// Over the declared episodes: mean |x − c|_∞ from the true x to the
+    /// nearest goal centre c, and mean |E_b[z] − x|_∞ of the belief's mean
+    /// (whether the agent missed because it believed it was elsewhere).
+    pub declare_dist: f64,
+    pub belief_err: f64,
+}
+
+/// Runs `policy` (solved on `cp`) for `runs` seeded episodes of at most
+/// `horizon` decisions in the continuous problem `p` (module doc).
+pub fn evaluate(
+    cp: &ChainPomdp,
+    policy: &AlphaPolicy,
+    p: &Problem<'_>,
+    runs: usize,
+    horizon: usize,
+    seed: u64,
+) -> Outcome {
+    let d = cp.dim;
+    let h = cp.period;
+    let m = cp.steps.max(1);
+    let de = h / m as f64;
+    let g = cp.pomdp.discount;
+    let ns = cp.pomdp.n_states();
+    let mut b = vec![0.0; ns];
+    let mut next = vec![0.0; ns];
+    let mut x = vec![0.0; d];
+    let mut y = vec![0.0; d];
+    let mut ret = Vec::with_capacity(runs);
+    let (mut in_goal, mut declared) = (0usize, 0usize);
+    let (mut dist, mut berr) = (0.0, 0.0);
+    let inf_norm = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0, f64::max)
+    };
+    for run in 0..runs {
+        let mut r_start = rng::stream(seed, 3 * run as u64);
+        let mut r_dyn = rng::stream(seed, 3 * run as u64 + 1);
+        let mut r_obs = rng::stream(seed, 3 * run as u64 + 2);
+        for (i, xi) in x.iter_mut().enumerate() {
+            let v = match &p.start {
+                Start::Gaussian { mean, std } => {
+                    mean[i] + std * r_start.sample::<f64, _>(StandardNormal)
+                }
+                Start::Uniform { lo, hi } => r_start.random_range(*lo..*hi),
+            };
+            *xi = v.clamp(-2.0, 2.0);
+        }
+        let mut z = 0usize;
+        if p.chain_truth {
+            z = draw(&cp.pomdp.start, r_start.random::<f64>());
+            x.copy_from_slice(cp.state(z));
+        }
+        b.copy_from_slice(&cp.pomdp.start);
+        let (mut total, mut disc) = (0.0, 1.0);
+        for _ in 0..horizon {
+            let a = policy.action(&b);
+            let Some(u) = cp.control(a) else {
+                declared += 1;
+                dist += p
+                    .goal
+                    .0
+                    .iter()
+                    .map(|(c, _)| inf_norm(c, &x))
+                    .fold(f64::INFINITY, f64::min);
+                // y is free at the end of the episode: the belief's mean.
+                for (i, yi) in y.iter_mut().enumerate() {
+                    *yi = (0..cp.n_chain()).map(|z| b[z] * cp.state(z)[i]).sum();
+                }
+                berr += inf_norm(&y, &x);
+                let hit = p.goal.contains(&x);
+                in_goal += usize::from(hit);
+                total += disc * if hit { 1000.0 } else { -1000.0 };
+                break;
+            };
+            total += disc * cp.pomdp.reward[a][0];
+            if p.chain_truth {
+                let (cols, vals) = cp.pomdp.trans[a].row(z);
+                z = cols[draw(vals, r_dyn.random::<f64>())] as usize;
+                x.copy_from_slice(cp.state(z));
+            }
+            for _ in 0..m * usize::from(!p.chain_truth) {
+                for i in 0..d {
+                    let v = x[i]
+                        + u[i] * de
+                        + p.sigma * de.sqrt() * r_dyn.sample::<f64, _>(StandardNormal);
+                    x[i] = v.clamp(-2.0, 2.0);
+                }
+            }
+            let s = if p.obs.light.contains(&x) {
+                p.obs.eps
+            } else {
+                1.0 / p.obs.eps
+            };
+            for (yi, xi) in y.iter_mut().zip(&x) {
+                *yi = xi + s * r_obs.sample::<f64, _>(StandardNormal);
+            }
+            if cp.update(&b, a, &y, p.obs, &mut next) {
+                std::mem::swap(&mut b, &mut next);
+            } else {
+                // Every likelihood underflowed: keep the prediction.
+                let sum: f64 = next.iter().sum();
+                if sum > 0.0 {
+                    for (bi, pi) in b.iter_mut().zip(&next) {
+                        *bi = pi / sum;
+                    }
+                }
+            }
+            disc *= g;
+        }
+        ret.push(total);
+    }
+    let n = runs as f64;
+    let mean = ret.iter().sum::<f64>() / n;
+    let var = ret.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+    Outcome {
+        mean,
+        std_err: (var / n).sqrt(),
+        goal_frac: in_goal as f64 / n,
+        declared_frac: declared as f64 / n,
+        declare_dist: dist / declared.max(1) as f64,
+        belief_err: berr / declared.max(1) as f64,
+    }
+}
+
+/// The index where the cumulative sum of `w` passes `u`·Σw.
+fn draw(w: &[f64], u: f64) -> usize {
+    let mut r = u * w.iter().sum::<f64>();
+    for (j, &wj) in w.iter().enumerate() {
+        if r < wj {
+            return j;
+        }
+        r -= wj;
+    }
+    w.len() - 1
+}
