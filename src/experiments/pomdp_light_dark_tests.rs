@@ -1,4 +1,5 @@
 use super::*;
+use beliefbus_pomdp::chain_pomdp::ObservationModel;
 
 fn setting() -> Setting {
     Setting {

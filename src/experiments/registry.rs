@@ -455,58 +455,6 @@ const SHIP_CONTROL: &[ParamDoc] = &[
     ),
 ];
 
-const POMDP_LIGHT_DARK: &[ParamDoc] = &[
-    p("states", "75,150,300,600", "2-D chain sizes n"),
-    p("solve_s", "60", "solver time per 2-D size (s)"),
-    p(
-        "anytime_s",
-        "5,15,30,60",
-        "solver budgets of the anytime curve at anytime_states (s)",
-    ),
-    p(
-        "anytime_states",
-        "150",
-        "2-D chain size of the anytime curve",
-    ),
-    p("solve_1d_s", "10", "solver time of the 1-D problem (s)"),
-    p("noise", "0.1", "diffusion sigma of dx = u dt + sigma dw"),
-    p(
-        "epsilon",
-        "0.1",
-        "observation sigma in the light (1/epsilon in the dark)",
-    ),
-    p(
-        "rate",
-        "0.1",
-        "discount rate rho, gamma = exp(-rho h) (1/s)",
-    ),
-    p(
-        "plot",
-        "(none)",
-        "write the 1-D belief trajectory to this SVG file",
-    ),
-    p(
-        "carry_check",
-        "0",
-        "1: also value each previous plan off its chain (continuous simulation, carried)",
-    ),
-    p(
-        "match_mean",
-        "0",
-        "1: chain rows consistent in the mean (E[dz] = u h at every state)",
-    ),
-    p(
-        "period_s",
-        "0",
-        "decision period fixed across sizes (s); 0: the chain step of each size",
-    ),
-    p(
-        "kappa_drift",
-        "1",
-        "kappa_f of the 2-D chain's holding time r^2/(kappa_F |FF'| + kappa_f r |f|)",
-    ),
-];
-
 /// Every experiment, in the order `beliefbus experiment --list` shows them.
 pub fn all() -> Vec<Experiment> {
     let e = |name, about, reproduces, params, run| Experiment {
@@ -588,7 +536,7 @@ pub fn all() -> Vec<Experiment> {
         e("pomdp-light-dark",
             "light-dark 1-D (belief trajectory) and 2-D (reward vs states, anytime curve) as chain POMDPs",
             "thesis (000) Figs. 4-6, 4-7, 4-8",
-            POMDP_LIGHT_DARK, pomdp_light_dark::run),
+            pomdp_light_dark::PARAMS, pomdp_light_dark::run),
         e("ship-control",
             "closed-loop ship: implicit path-integral control vs MPPI-2048/512, cost and compute per control",
             "paper 003 sec. 3 (ship), no table: cost and compute per control",
