@@ -44,6 +44,31 @@ fn moments(xs: &[Pose], c: usize) -> (f64, f64) {
     (m, v)
 }
 
+/// Coordinate `c` of the moved poses `xs` against a reference mean and
+/// variance: the mean within `k` standard errors `se`, the variance within
+/// the relative tolerance `var_tol`.
+#[allow(clippy::too_many_arguments)]
+fn assert_moments(
+    xs: &[Pose],
+    c: usize,
+    mean: f64,
+    var: f64,
+    se: f64,
+    k: f64,
+    var_tol: f64,
+    what: &str,
+) {
+    let (m1, v1) = moments(xs, c);
+    assert!(
+        (m1 - mean).abs() < k * se,
+        "{what} coord {c}: mean {m1} vs {mean} (se {se})"
+    );
+    assert!(
+        (v1 / var - 1.0).abs() < var_tol,
+        "{what} coord {c}: var {v1} vs {var}"
+    );
+}
+
 /// Load `paths` into a window (one particle per path) with `sights` (step,
 /// return) for every particle against landmark 0.
 fn load(paths: &[[Pose; W + 1]], sights: &[(usize, RangeBearing)], cfg: MoveConfig) -> PathWindow {
@@ -108,17 +133,10 @@ fn without_sightings_the_move_keeps_the_motion_models_path_distribution() {
             "age {age}: only {changed} of {n} poses moved"
         );
         for c in 0..3 {
-            let (m1, v1) = moments(&xs, c);
+            let (_, v1) = moments(&xs, c);
             let (m2, v2) = moments(&refs, c);
             let se = ((v1 + v2) / n as f64).sqrt();
-            assert!(
-                (m1 - m2).abs() < 5.0 * se,
-                "age {age} coord {c}: mean {m1} vs {m2} (se {se})"
-            );
-            assert!(
-                (v1 / v2 - 1.0).abs() < 0.15,
-                "age {age} coord {c}: var {v1} vs {v2}"
-            );
+            assert_moments(&xs, c, m2, v2, se, 5.0, 0.15, &format!("age {age}"));
         }
     }
     let rate = w.accepted as f64 / w.proposed as f64;
@@ -215,18 +233,10 @@ fn with_sightings_the_move_keeps_the_posterior_of_importance_sampling() {
                 .map(|(p, q)| q * (p[W - age][c] - mean).powi(2))
                 .sum::<f64>()
                 / tot;
-            let (m1, v1) = moments(&xs, c);
             // The chain's draws are correlated through the resampled
             // duplicates; 6 SE of n independent draws plus the estimator's.
             let se = (var / n as f64 + var / ess).sqrt();
-            assert!(
-                (m1 - mean).abs() < 6.0 * se,
-                "age {age} coord {c}: mean {m1} vs {mean} (se {se})"
-            );
-            assert!(
-                (v1 / var - 1.0).abs() < 0.2,
-                "age {age} coord {c}: var {v1} vs {var}"
-            );
+            assert_moments(&xs, c, mean, var, se, 6.0, 0.2, &format!("age {age}"));
         }
     }
     let rate = w.accepted as f64 / w.proposed as f64;
