@@ -26,8 +26,11 @@ fn the_light_dark_scenario_solves_its_policy_then_runs_it_live_with_swaps() {
     let policy_set = format!("light-dark.policy.path={:?}", policy.display().to_string());
     let mut run_args = vec!["run", "--scenario", "light-dark", "--duration", "8"];
     run_args.extend(["--quiet", "--set", &policy_set]);
-    // Background rounds of 1 s: several swaps within the run.
+    // Background rounds of 1 s: several swaps within the run. At nice 0,
+    // not the default 19: on a machine busy with other work a nice-19
+    // thread gets ~1.5 % of a core and may not finish a round in the run.
     run_args.extend(["--set", "light-dark.policy.refine_round_s=1.0"]);
+    run_args.extend(["--set", "light-dark.policy.refine_nice=0"]);
 
     // No policy yet: refused at validation, naming the command.
     let o = beliefbus(&dir, &run_args);

@@ -24,7 +24,7 @@
 //! each published control; never at validation), a background thread
 //! that keeps solving the same POMDP from the full set of the policy in
 //! use (its α-vectors seed the solver's lower bound, so V̲(b₀) never
-//! decreases), at SCHED_OTHER nice 19 and moved off the
+//! decreases), at SCHED_OTHER nice `refine_nice` (19) and moved off the
 //! control thread's core. When a round raises V̲(b₀) it builds the new
 //! bounded table on that thread and offers it through a lock-free mailbox
 //! ([`super::swap`]); `prepare` — off the sensor→control path — takes it
@@ -146,12 +146,13 @@ impl PomdpController {
             .take()
             .unwrap_or_else(|| self.policy.get().clone());
         let (flag, out) = (stop.clone(), mailbox.clone());
+        let nice = sys.params.policy.refine_nice;
         // SAFETY: sched_getcpu has no preconditions.
         let core = unsafe { libc::sched_getcpu() };
         let spawned = std::thread::Builder::new()
             .name("pomdp-solve".into())
             .spawn(move || {
-                demote_this_thread(core);
+                demote_this_thread(core, nice);
                 background_solve(sys, first, &out, flag)
             });
         if spawned.is_ok() {
@@ -174,20 +175,20 @@ impl Drop for PomdpController {
     }
 }
 
-/// Lower the calling thread to SCHED_OTHER at nice 19 (Linux applies both
-/// to the calling thread only; not SCHED_IDLE, which starves it outright
+/// Lower the calling thread to SCHED_OTHER at `nice` (19 by default;
+/// Linux applies both to the calling thread only; not SCHED_IDLE, which starves it outright
 /// on a machine busy with other work, so no improved policy would ever
 /// arrive), and move it off `core`
 /// (the control thread's) onto the machine's other cores, so the solver
 /// neither delays the control thread nor evicts its table from that
 /// core's caches. Failures leave the thread as it was.
-fn demote_this_thread(core: i32) {
+fn demote_this_thread(core: i32, nice: i32) {
     let param = libc::sched_param { sched_priority: 0 };
     // SAFETY: sched_setscheduler / setpriority / sched_setaffinity on the
     // calling thread (0) with valid arguments; cpu_set_t is plain data.
     unsafe {
         libc::sched_setscheduler(0, libc::SCHED_OTHER, &param);
-        libc::setpriority(libc::PRIO_PROCESS, 0, 19);
+        libc::setpriority(libc::PRIO_PROCESS, 0, nice);
         if core < 0 {
             return;
         }

@@ -296,17 +296,46 @@ fn the_bounded_table_reaches_the_goal_as_the_full_set_does() {
     );
 }
 
+/// Nice levels of this process's threads named `pomdp-solve`
+/// (`/proc/self/task/*/stat`, field 19).
+fn solver_thread_nices() -> Vec<i64> {
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return vec![];
+    };
+    tasks
+        .flatten()
+        .filter_map(|t| {
+            let stat = std::fs::read_to_string(t.path().join("stat")).ok()?;
+            // "tid (comm) state ...": fields after the comm's closing paren.
+            let (head, rest) = stat.rsplit_once(") ")?;
+            head.ends_with("(pomdp-solve").then_some(())?;
+            rest.split_whitespace().nth(16)?.parse().ok()
+        })
+        .collect()
+}
+
 #[test]
 fn the_background_solve_publishes_better_policies_the_controller_swaps_in() {
     let sys = system(|p| {
         p.policy.refine_round_s = 0.5;
         p.policy.refine_rounds = 4;
+        p.policy.refine_nice = 7;
     });
     let (pol, lower) = solved(&sys, 0.3);
     let mut ctl = PomdpController::with_policy(&sys, FlatPolicy::new(&pol, 20, lower));
     assert_eq!(ctl.policy().1, 0);
     ctl.start_background();
     let started = std::time::Instant::now();
+    // The solver thread runs at the configured nice level (no other test
+    // uses 7; threads of other tests in this process may be named alike).
+    while !solver_thread_nices().contains(&7) && started.elapsed().as_secs() < 10 {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    assert!(
+        solver_thread_nices().contains(&7),
+        "{:?}",
+        solver_thread_nices()
+    );
     // A 0.3 s policy is far from converged: the first 0.5 s round improves
     // it (wait up to a minute on a loaded machine).
     while !ctl.try_swap() && started.elapsed().as_secs() < 60 {
@@ -401,6 +430,8 @@ fn bad_parameters_are_refused_naming_the_key() {
     assert!(bad(|p| p.epsilon = 0.0).contains("epsilon"));
     assert!(bad(|p| p.plant = "ode".into()).contains("plant"));
     assert!(bad(|p| p.goal = 2.5).contains("goal"));
+    assert!(bad(|p| p.policy.refine_nice = 20).contains("refine_nice"));
+    assert!(bad(|p| p.policy.refine_nice = -1).contains("refine_nice"));
 }
 
 #[test]
