@@ -86,6 +86,26 @@ fn the_timer_baseline_runs_on_every_core_and_reports_blocks() {
     }
     assert_eq!(base["latency"]["count"].as_u64().unwrap(), total);
     assert!(v["paths"].is_array());
+    // The stall probe ran on every core for --duration (1.2 s), at the
+    // fixed thresholds (no pipeline), its rates falling with the threshold.
+    let stalls = v["host_stalls"].as_array().unwrap();
+    assert_eq!(stalls.len(), n);
+    let fixed: Vec<f64> = beliefbus::latency::jitter::THRESHOLDS_US.to_vec();
+    for (i, r) in stalls.iter().enumerate() {
+        assert_eq!(r["core"], i);
+        let spun = r["spun_s"].as_f64().unwrap();
+        assert!(spun > 0.0 && spun <= 1.2, "{r}");
+        let t: Vec<f64> = serde_json::from_value(r["thresholds_us"].clone()).unwrap();
+        assert_eq!(t, fixed);
+        for k in ["charged_per_min", "steal_per_min", "switched_per_min"] {
+            let x: Vec<f64> = serde_json::from_value(r[k].clone()).unwrap();
+            assert_eq!(x.len(), t.len());
+            assert!(
+                x.windows(2).all(|w| w[0] >= w[1] && w[1] >= 0.0),
+                "{k}: {x:?}"
+            );
+        }
+    }
     for c in 0..n {
         for what in ["wake", "period-jitter"] {
             let f = dir.join("hdr").join(format!("timer-core{c}.{what}.hlog"));
@@ -166,5 +186,15 @@ fn the_pipeline_is_measured_against_the_timer_in_the_same_run() {
         );
     }
     assert!(pipe["hops"]["sensor->control"]["count"].as_u64().unwrap() > 0);
+    // The stall probe's thresholds include every stage's budget, so each
+    // stage's misses can be set beside the host stalls longer than it.
+    for r in v["host_stalls"].as_array().unwrap() {
+        let t: Vec<f64> = serde_json::from_value(r["thresholds_us"].clone()).unwrap();
+        for stage in ["ingest", "filter", "control", "plant"] {
+            let b = pipe["stages"][stage]["budget_us"].as_f64().unwrap();
+            assert!(t.contains(&b), "{stage} {b} not in {t:?}");
+            assert!(pipe["stages"][stage]["core"].is_u64(), "{stage}");
+        }
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

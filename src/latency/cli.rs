@@ -4,6 +4,7 @@
 
 use super::hdr::file_stem;
 use super::hdr::HdrLog;
+use super::jitter::probe;
 use super::jitter::{
     baseline_entries, timer_baseline, JitterEntry, JitterReport, PipelineInfo, TimerConfig,
 };
@@ -96,6 +97,10 @@ pub struct JitterArgs {
     /// Only the timer baseline, no pipeline.
     #[arg(long)]
     pub timer_only: bool,
+    /// Seconds of the host stall probe after the timer baseline (one
+    /// spinning thread per core; 0: off; default: --duration, at most 10).
+    #[arg(long, value_name = "SECONDS")]
+    pub probe: Option<f64>,
 }
 
 /// The pipeline `beliefbus jitter` runs by default (1 kHz closed loop).
@@ -335,6 +340,17 @@ fn merged<'a>(hs: impl Iterator<Item = &'a LatencyHist>) -> LatencyHist {
     m
 }
 
+/// The stall probe's length: `--probe`, else `--duration` capped at 10 s.
+fn probe_seconds(a: &JitterArgs) -> Result<f64, LatencyError> {
+    let s = a.probe.unwrap_or(a.duration.min(10.0));
+    if !(s.is_finite() && (0.0..=3600.0).contains(&s)) {
+        return Err(LatencyError::BadArg(format!(
+            "--probe must be 0..=3600 seconds, got {s}"
+        )));
+    }
+    Ok(s)
+}
+
 /// `beliefbus jitter ...`.
 pub fn jitter(a: JitterArgs) -> Result<()> {
     let pipe = check(pipeline_config(&a))?;
@@ -380,6 +396,17 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
     let cores = timer_baseline(&cfg, stop)?;
     let baseline_host = crate::rt::host::loss(&host0, &crate::rt::host::snapshot(), &cfg.cores);
     drop(warm);
+    let probe_s = check(probe_seconds(&a))?;
+    let stalls = if probe_s > 0.0 && !stop.load(std::sync::atomic::Ordering::Relaxed) {
+        eprintln!(
+            "host stall probe on cores {:?} for {probe_s:.1} s",
+            cfg.cores
+        );
+        let d = Duration::from_secs_f64(probe_s);
+        crate::rt::stall::probe(&cfg.cores, d, cfg.fifo, stop).map_err(LatencyError::Spawn)?
+    } else {
+        Vec::new()
+    };
     let measured = match &pipe {
         Some((p, _)) if !stop.load(std::sync::atomic::Ordering::Relaxed) => {
             eprintln!("pipeline: starting beliefbus run ...");
@@ -391,6 +418,7 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
     let load = load0.until(&LoadSample::now());
     let (baseline, per_core) = baseline_entries(&cfg, &cores);
     let mut warnings: Vec<String> = cores.iter().flat_map(|c| c.warnings.clone()).collect();
+    warnings.extend(stalls.iter().flat_map(|c| c.warnings.clone()));
     if cfg.fifo.is_some() && cores.iter().any(|c| !c.fifo) {
         warnings.push("some timer threads ran SCHED_OTHER".into());
     }
@@ -450,7 +478,12 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
         load,
         shm_left,
         baseline_host,
+        host_stalls: Vec::new(),
         warnings,
+    };
+    let report = JitterReport {
+        host_stalls: probe::rows(&stalls, &probe::thresholds(report.pipeline.as_ref())),
+        ..report
     };
     print!("{}", report.render());
     if let Some(path) = &a.json {

@@ -72,6 +72,9 @@ pub struct StageFigures {
     /// (response − budget; negative: early).
     pub late: u64,
     pub lateness_p99_us: Option<f64>,
+    /// The core the stage was pinned to (null: not pinned).
+    #[serde(default)]
+    pub core: Option<usize>,
 }
 
 /// What the monitor measured.
@@ -184,6 +187,7 @@ fn stage_figures(report: &serde_json::Value) -> Vec<(String, StageFigures)> {
                     compute_p99_us: s["compute_p99_us"].as_f64(),
                     late: s["late"].as_u64().unwrap_or(0),
                     lateness_p99_us: s["lateness_p99_us"].as_f64(),
+                    core: s["core"].as_u64().map(|c| c as usize),
                 },
             ))
         })

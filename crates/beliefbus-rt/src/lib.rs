@@ -4,6 +4,7 @@
 //! locking (each with a one-line warning and a fallback when not permitted),
 //! idle-class spinners that keep the pipeline's cores awake (`keep_warm`),
 //! the time the machine took from each core (`host`: steal, interrupts),
+//! a probe of the stalls the host inflicts on a spinning core (`stall`),
 //! and the rules for every file a run writes (`files`).
 
 pub mod budget;
@@ -13,6 +14,7 @@ pub mod hist;
 pub mod host;
 pub mod keep_warm;
 pub mod sched;
+pub mod stall;
 
 pub use budget::Budget;
 pub use clock::{Clock, MonotonicClock, SimClock};

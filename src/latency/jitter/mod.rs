@@ -14,12 +14,18 @@
 //! All cores run at once (like `cyclictest -a -t`), so the baseline sees the
 //! same machine the pipeline does.
 //!
+//! **Host stall probe** (after `hwlatdetect`): then one thread per core
+//! spins on the clock ([`crate::rt::stall`]) and counts the gaps the host
+//! made, by what the guest kernel saw of them, at the stage budgets.
+//!
 //! [`timer`] runs the baseline; [`report`] puts the pipeline's figures
-//! beside it.
+//! beside it; [`probe`] the stall probe's.
 
+pub mod probe;
 mod report;
 mod timer;
 
+pub use probe::{StallRow, THRESHOLDS_US};
 pub use report::{baseline_entries, JitterEntry, JitterReport, PipelineInfo};
 pub use timer::{timer_baseline, CoreTimer, TimerConfig};
 

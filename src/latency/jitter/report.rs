@@ -102,6 +102,9 @@ pub struct JitterReport {
     /// (steal, interrupts; `beliefbus_rt::host`).
     #[serde(default)]
     pub baseline_host: Vec<crate::rt::host::CoreLoss>,
+    /// The host stall probe, per core (empty: not run).
+    #[serde(default)]
+    pub host_stalls: Vec<super::probe::StallRow>,
     pub warnings: Vec<String>,
 }
 
@@ -243,6 +246,7 @@ impl JitterReport {
                 total - host
             );
         }
+        s += &super::probe::render(&self.host_stalls, self.pipeline.as_ref());
         if let Some(p) = &self.pipeline {
             let a = |k: &str| {
                 p.accuracy[k]

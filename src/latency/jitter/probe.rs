@@ -1,0 +1,182 @@
+//! The host stall probe's part of the jitter report
+//! ([`crate::rt::stall`]): per core, how many stalls of each kind longer
+//! than each threshold a spinning thread met, per minute of spinning, and
+//! beside each stage's misses the rate of host stalls longer than that
+//! stage's budget on its core.
+
+use super::report::PipelineInfo;
+use crate::rt::stall::{CoreStalls, StallKind};
+use serde::{Deserialize, Serialize};
+
+/// Thresholds every report has (µs); the pipeline's stage budgets are
+/// added to them.
+pub const THRESHOLDS_US: [f64; 6] = [50.0, 100.0, 200.0, 500.0, 1000.0, 5000.0];
+
+/// One core's probe figures.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StallRow {
+    pub core: usize,
+    pub fifo: bool,
+    /// Seconds spent spinning.
+    pub spun_s: f64,
+    /// Ascending thresholds the counts are for, µs.
+    pub thresholds_us: Vec<f64>,
+    /// Stalls longer than each threshold per minute of spinning, by kind.
+    pub switched_per_min: Vec<f64>,
+    pub charged_per_min: Vec<f64>,
+    pub steal_per_min: Vec<f64>,
+    /// Total stalled time per minute of spinning (ms) and the longest
+    /// stall (µs), by kind: switched, charged, steal.
+    pub total_ms_per_min: [f64; 3],
+    pub max_us: [f64; 3],
+}
+
+/// The thresholds: the fixed ones and the stage budgets, ascending.
+pub fn thresholds(pipeline: Option<&PipelineInfo>) -> Vec<f64> {
+    let mut t: Vec<f64> = THRESHOLDS_US.to_vec();
+    if let Some(p) = pipeline {
+        t.extend(p.stages.values().filter_map(|f| f.budget_us));
+    }
+    t.retain(|x| x.is_finite() && *x > 0.0);
+    t.sort_by(f64::total_cmp);
+    t.dedup();
+    t
+}
+
+/// The rows of a probe run.
+pub fn rows(stalls: &[CoreStalls], thresholds_us: &[f64]) -> Vec<StallRow> {
+    stalls
+        .iter()
+        .map(|c| {
+            let rate = |k: StallKind| -> Vec<f64> {
+                thresholds_us
+                    .iter()
+                    .map(|t| c.per_minute(k, (t * 1e3) as u64))
+                    .collect()
+            };
+            let minutes = c.spun_ns as f64 / 60e9;
+            let per_min = |k: StallKind| match minutes > 0.0 {
+                true => c.total_ns(k) as f64 / 1e6 / minutes,
+                false => 0.0,
+            };
+            StallRow {
+                core: c.core,
+                fifo: c.fifo,
+                spun_s: c.spun_ns as f64 / 1e9,
+                thresholds_us: thresholds_us.to_vec(),
+                switched_per_min: rate(StallKind::Switched),
+                charged_per_min: rate(StallKind::Charged),
+                steal_per_min: rate(StallKind::Steal),
+                total_ms_per_min: StallKind::ALL.map(per_min),
+                max_us: StallKind::ALL.map(|k| c.gaps[k as usize].max() as f64 / 1e3),
+            }
+        })
+        .collect()
+}
+
+/// The console lines.
+pub fn render(rows: &[StallRow], pipeline: Option<&PipelineInfo>) -> String {
+    let Some(first) = rows.first() else {
+        return String::new();
+    };
+    let mut s = String::from(
+        "host stall probe: a thread spinning on each core, stalls per minute of spinning longer than (µs):\n",
+    );
+    s += &format!("  {:<26}", "");
+    for t in &first.thresholds_us {
+        s += &format!(" {t:>7.0}");
+    }
+    s += " | stalled ms/min  longest µs\n";
+    for r in rows {
+        let fifo = if r.fifo { ", FIFO" } else { "" };
+        for (k, rates) in [
+            (StallKind::Charged, &r.charged_per_min),
+            (StallKind::Steal, &r.steal_per_min),
+            (StallKind::Switched, &r.switched_per_min),
+        ] {
+            let label = format!("core {} {} ({:.0} s{fifo})", r.core, k.name(), r.spun_s);
+            s += &format!("  {label:<26}");
+            for x in rates.iter() {
+                s += &format!(" {x:>7.1}");
+            }
+            s += &format!(
+                " | {:>14.1} {:>11.0}\n",
+                r.total_ms_per_min[k as usize], r.max_us[k as usize]
+            );
+        }
+    }
+    s += "  (charged: the guest counted the time as the thread's own CPU — host exits not reported as steal, or this machine's interrupt handlers — so a stage's budget split calls such a miss an overrun; steal: reported by the hypervisor; switched: another task of this machine ran)\n";
+    let Some(p) = pipeline else {
+        return s;
+    };
+    for (name, f) in &p.stages {
+        let (Some(core), Some(b)) = (f.core, f.budget_us) else {
+            continue;
+        };
+        let Some(r) = rows.iter().find(|r| r.core == core) else {
+            continue;
+        };
+        let Some(i) = r.thresholds_us.iter().position(|t| *t == b) else {
+            continue;
+        };
+        s += &format!(
+            "  {name} (core {core}, budget {b:.0} µs): host stalls longer than its budget {:.1} charged + {:.1} steal per minute; its misses: {} over budget in CPU time, {} preempted ({} the host's)\n",
+            r.charged_per_min[i],
+            r.steal_per_min[i],
+            f.deadline_misses - f.deadline_misses_preempted,
+            f.deadline_misses_preempted,
+            f.deadline_misses_host,
+        );
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rows_count_stalls_above_each_threshold_per_minute() {
+        let mut c = CoreStalls::new(1);
+        c.spun_ns = 30_000_000_000; // half a minute
+        for us in [60, 120, 700, 2_000] {
+            c.gaps[StallKind::Charged as usize].record(us * 1_000);
+        }
+        c.gaps[StallKind::Steal as usize].record(6_000_000);
+        let r = &rows(&[c], &[50.0, 100.0, 700.0, 1000.0])[0];
+        assert_eq!(r.core, 1);
+        assert_eq!(r.spun_s, 30.0);
+        // Above 50: 4; above 100: 3; above 700 (700 itself not above): 1;
+        // above 1000: 1. Per minute: twice that.
+        assert_eq!(r.charged_per_min, vec![8.0, 6.0, 2.0, 2.0]);
+        assert_eq!(r.steal_per_min, vec![2.0; 4]);
+        assert_eq!(r.switched_per_min, vec![0.0; 4]);
+        let charged_ms = (60 + 120 + 700 + 2_000) as f64 / 1e3 * 2.0;
+        assert!((r.total_ms_per_min[1] - charged_ms).abs() < 0.01);
+        assert!((r.max_us[2] - 6_000.0).abs() < 10.0);
+    }
+
+    #[test]
+    fn thresholds_add_the_stage_budgets_once_and_sort() {
+        assert_eq!(thresholds(None), THRESHOLDS_US.to_vec());
+        let mut p: PipelineInfo = serde_json::from_value(serde_json::json!({
+            "config": "c", "sets": [], "sensor_rate_hz": 1000.0, "controls": 1,
+            "stages": {}, "hops": null
+        }))
+        .unwrap();
+        for (name, b) in [("control", 700.0), ("filter", 300.0), ("ingest", 50.0)] {
+            let f = serde_json::json!({
+                "processed": 1, "deadline_misses": 0, "budget_us": b,
+                "compute_p50_us": null, "compute_p99_us": null, "late": 0,
+                "lateness_p99_us": null, "core": 1
+            });
+            p.stages
+                .insert(name.into(), serde_json::from_value(f).unwrap());
+        }
+        let t = thresholds(Some(&p));
+        assert_eq!(
+            t,
+            vec![50.0, 100.0, 200.0, 300.0, 500.0, 700.0, 1000.0, 5000.0]
+        );
+    }
+}
