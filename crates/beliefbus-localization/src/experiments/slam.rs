@@ -353,16 +353,7 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
     }
     let plot = ps.raw("plot").map(str::to_string);
     let assoc = AssocMode::parse(ps.raw("association").unwrap_or("ml"))?;
-    let existence = super::slam_run::parse_existence(
-        &ps,
-        crate::slam::existence::ExistenceConfig::half_circle(carpark.max_range),
-    )?;
-    if existence.is_some() && assoc != AssocMode::PerParticle {
-        return Err(LocalizationError::Param {
-            key: "existence".into(),
-            msg: "removing landmarks renumbers a particle's map: needs association=ml".into(),
-        });
-    }
+    let existence = super::slam_run::carpark_existence(&ps, assoc, carpark.max_range)?;
     Ok(Setup {
         reading,
         data_dir: victoria::resolve_dir(ps.raw("data_dir")),

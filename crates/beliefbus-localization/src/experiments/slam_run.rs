@@ -87,6 +87,23 @@ pub fn parse_existence(
     }
 }
 
+/// The existence rule on the synthetic car park (a forward half circle
+/// of radius `max_range`); it needs per-particle association.
+pub fn carpark_existence(
+    ps: &Params,
+    assoc: AssocMode,
+    max_range: f64,
+) -> Result<Option<ExistenceConfig>, LocalizationError> {
+    let existence = parse_existence(ps, ExistenceConfig::half_circle(max_range))?;
+    if existence.is_some() && assoc != AssocMode::PerParticle {
+        return Err(LocalizationError::Param {
+            key: "existence".into(),
+            msg: "removing landmarks renumbers a particle's map: needs association=ml".into(),
+        });
+    }
+    Ok(existence)
+}
+
 /// The existence setting as reported.
 pub fn existence_name(c: Option<ExistenceConfig>) -> String {
     c.map_or("off".into(), |c| {
