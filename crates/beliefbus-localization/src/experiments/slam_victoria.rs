@@ -60,6 +60,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p("association", "ml", "'ml': the ML rule once per particle; 'shared': once per return for the whole particle set (slam::shared_assoc)"),
     p("exclusive", "off", "'next' or 'drop': a scan's returns are associated jointly, one landmark per return at most, a return beaten to its landmark taking its next candidate or dropped (slam::scan_assoc), by every method; 'off': each return on its own"),
     p("per_run", "(none)", "write each seed's rms_m and p95_m per method to this CSV (for paired comparisons)"),
+    p("trace", "(none)", "write per scan and run the estimate and the running association counts (known, new, discarded, removed; summed over particles) to this CSV, to find where a map slips"),
     p("plot", "(none)", "write an SVG of each method's path and map over GPS and dead reckoning here"),
     p("existence", "off", "'on': landmark existence from negative information for the particle filters (slam::existence): a provisional landmark predicted in view and not seen loses existence_miss per scan, gains 1 when seen, is confirmed at existence_confirm and removed at 0 (start 1); EKF-SLAM ignores it"),
     p("existence_miss", "0.25", "evidence lost per scan in which a provisional landmark is predicted in view and not associated"),
@@ -203,6 +204,11 @@ pub fn run(
         },
     )?;
     let per_run_path = ps.raw("per_run").map(str::to_string);
+    let trace_path = ps.raw("trace").map(str::to_string);
+    let mut trace = String::new();
+    if trace_path.is_some() {
+        trace.push_str("method,samples,run,time_s,x,y,known,new,discarded,removed\n");
+    }
     let mut per_run = String::from("method,samples,run,rms_m,p95_m,landmarks,move_accept\n");
     let plot = ps.raw("plot").map(str::to_string);
     let runs = runs.unwrap_or(1).max(1);
@@ -308,6 +314,19 @@ pub fn run(
                 for k in 1..times.len() {
                     let obs = scan_at[k].map_or(&empty[..], |i| &scan_obs[i][..]);
                     path[k] = f.step(controls[k - 1], times[k] - times[k - 1], obs, &mut rng)?;
+                    if trace_path.is_some() && !obs.is_empty() {
+                        let st = f.stats();
+                        trace.push_str(&format!(
+                            "{name},{m},{r},{},{},{},{},{},{},{}\n",
+                            times[k],
+                            path[k][0],
+                            path[k][1],
+                            st.known,
+                            st.new,
+                            st.discarded,
+                            st.removed
+                        ));
+                    }
                 }
                 let time_s = t0.elapsed().as_secs_f64();
                 let (rms, p95) = rms_p95(&gps_errors(&times, &path, &gps));
@@ -395,6 +414,12 @@ pub fn run(
     rep.notes.push(
         "times are wall-clock on a shared 2-core machine under load from other builds".into(),
     );
+    if let Some(path) = &trace_path {
+        std::fs::write(path, &trace).map_err(|e| LocalizationError::Io {
+            path: path.clone(),
+            source: e,
+        })?;
+    }
     if let Some(path) = &per_run_path {
         std::fs::write(path, &per_run).map_err(|e| LocalizationError::Param {
             key: "per_run".into(),
