@@ -182,6 +182,10 @@ pub const PARAMS: &[ParamDoc] = &[
         "(none)",
         "write an SVG of time per update against error (ours and the paper's) here, and one of data set 0's paths and maps beside it (<name>-paths.svg)",
     ),
+    p("existence", "off", "'on': landmark existence from negative information for the particle filters (slam::existence): a provisional landmark predicted in view and not seen loses existence_miss per scan, gains 1 when seen, is confirmed at existence_confirm and removed at 0 (start 1); EKF-SLAM ignores it"),
+    p("existence_miss", "0.25", "evidence lost per scan in which a provisional landmark is predicted in view and not associated"),
+    p("existence_confirm", "3", "evidence at which a landmark is kept for good"),
+    p("existence_margin", "1", "a landmark counts as in view only this far (m) inside the field of view's edges"),
     p("move", "off", "'window': after each resampling, Metropolis-Hastings moves of every particle's last move_window poses with its landmarks held (slam::path_move; implicit only, the other methods ignore it); 'off': none"),
     p("move_window", "10", "poses moved per particle by the resample-move (W)"),
     p("move_sweeps", "1", "sweeps over the window per resample-move"),
@@ -253,6 +257,8 @@ pub struct Setup {
     pub per_run: Option<String>,
     /// The resample-move (implicit only).
     pub path_move: Option<crate::slam::path_move::MoveConfig>,
+    /// Landmark existence (particle filters; per-particle association).
+    pub existence: Option<crate::slam::existence::ExistenceConfig>,
 }
 
 /// Parse the parameters.
@@ -346,6 +352,8 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
         methods.push(("dead-reckoning", 1));
     }
     let plot = ps.raw("plot").map(str::to_string);
+    let assoc = AssocMode::parse(ps.raw("association").unwrap_or("ml"))?;
+    let existence = super::slam_run::carpark_existence(&ps, assoc, carpark.max_range)?;
     Ok(Setup {
         reading,
         data_dir: victoria::resolve_dir(ps.raw("data_dir")),
@@ -359,9 +367,10 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
         },
         methods,
         plot,
-        assoc: AssocMode::parse(ps.raw("association").unwrap_or("ml"))?,
+        assoc,
         per_run: ps.raw("per_run").map(str::to_string),
         path_move: super::slam_run::parse_move(&ps)?,
+        existence,
     })
 }
 
@@ -422,6 +431,7 @@ pub fn run(
         for (i, &(name, m)) in s.methods.iter().enumerate() {
             let mut f = make_filter(name, m, s.model, s.ess_threshold, s.newton)?;
             f.set_path_move(s.path_move)?;
+            f.set_existence(s.existence)?;
             let mut est = vec![Pose::zeros(); cp.steps() + 1];
             let mut rng = stream(seed, 1_000_000 + r);
             let (met, map) = run_one(
@@ -463,6 +473,7 @@ pub fn run(
     ]);
     rep.param("runs", runs);
     rep.param("move", super::slam_run::move_name(s.path_move));
+    rep.param("existence", super::slam_run::existence_name(s.existence));
     rep.param("seed", seed);
     rep.param("data_dir", s.data_dir.display().to_string());
     rep.param("start_time_s", s.carpark.start_time);

@@ -14,6 +14,7 @@ use crate::geometry::{Point, Pose};
 use crate::mcl::newton::NewtonSettings;
 use crate::slam::driver::{run_carpark_with, trajectory_error_pct, Pick, RunOptions};
 use crate::slam::ekf::EkfSlam;
+use crate::slam::existence::ExistenceConfig;
 use crate::slam::fastslam::{FastSlam, Version};
 use crate::slam::implicit::ImplicitSlam;
 use crate::slam::implicit_rb::ImplicitRbSlam;
@@ -59,6 +60,58 @@ pub fn parse_move(ps: &Params) -> Result<Option<MoveConfig>, LocalizationError> 
             msg: format!("'{v}': need 'off' or 'window'"),
         }),
     }
+}
+
+/// The existence rule from the parameters (`None`: off), with the
+/// experiment's field of view `fov` and the rule's defaults.
+pub fn parse_existence(
+    ps: &Params,
+    fov: ExistenceConfig,
+) -> Result<Option<ExistenceConfig>, LocalizationError> {
+    match ps.raw("existence").unwrap_or("off") {
+        "off" => Ok(None),
+        "on" => {
+            let c = ExistenceConfig {
+                miss: ps.get("existence_miss", fov.miss)?,
+                confirm: ps.get("existence_confirm", fov.confirm)?,
+                margin: ps.get("existence_margin", fov.margin)?,
+                ..fov
+            };
+            c.validate()?;
+            Ok(Some(c))
+        }
+        v => Err(LocalizationError::Param {
+            key: "existence".into(),
+            msg: format!("'{v}': need 'off' or 'on'"),
+        }),
+    }
+}
+
+/// The existence rule on the synthetic car park (a forward half circle
+/// of radius `max_range`); it needs per-particle association.
+pub fn carpark_existence(
+    ps: &Params,
+    assoc: AssocMode,
+    max_range: f64,
+) -> Result<Option<ExistenceConfig>, LocalizationError> {
+    let existence = parse_existence(ps, ExistenceConfig::half_circle(max_range))?;
+    if existence.is_some() && assoc != AssocMode::PerParticle {
+        return Err(LocalizationError::Param {
+            key: "existence".into(),
+            msg: "removing landmarks renumbers a particle's map: needs association=ml".into(),
+        });
+    }
+    Ok(existence)
+}
+
+/// The existence setting as reported.
+pub fn existence_name(c: Option<ExistenceConfig>) -> String {
+    c.map_or("off".into(), |c| {
+        format!(
+            "on start={} hit={} miss={} confirm={} range=[{}, {}] m bearing=[{:.4}, {:.4}] rad margin={} m",
+            c.start, c.hit, c.miss, c.confirm, c.min_range, c.max_range, c.min_bearing, c.max_bearing, c.margin
+        )
+    })
 }
 
 /// The resample-move setting as reported.

@@ -25,6 +25,7 @@ use crate::geometry::{Point, Pose};
 use crate::laser::LaserNoise;
 use crate::mcl::newton::NewtonSettings;
 use crate::slam::assoc::{AssocConfig, RangeBearing};
+use crate::slam::existence::ExistenceConfig;
 use crate::slam::scan_assoc::Exclusion;
 use crate::slam::SlamModel;
 use crate::vehicle::{Control, MotionNoise, Ute};
@@ -59,7 +60,12 @@ pub const PARAMS: &[ParamDoc] = &[
     p("association", "ml", "'ml': the ML rule once per particle; 'shared': once per return for the whole particle set (slam::shared_assoc)"),
     p("exclusive", "off", "'next' or 'drop': a scan's returns are associated jointly, one landmark per return at most, a return beaten to its landmark taking its next candidate or dropped (slam::scan_assoc), by every method; 'off': each return on its own"),
     p("per_run", "(none)", "write each seed's rms_m and p95_m per method to this CSV (for paired comparisons)"),
+    p("trace", "(none)", "write per scan and run the estimate and the running association counts (known, new, discarded, removed; summed over particles) to this CSV, to find where a map slips"),
     p("plot", "(none)", "write an SVG of each method's path and map over GPS and dead reckoning here"),
+    p("existence", "off", "'on': landmark existence from negative information for the particle filters (slam::existence): a provisional landmark predicted in view and not seen loses existence_miss per scan, gains 1 when seen, is confirmed at existence_confirm and removed at 0 (start 1); EKF-SLAM ignores it"),
+    p("existence_miss", "0.25", "evidence lost per scan in which a provisional landmark is predicted in view and not associated"),
+    p("existence_confirm", "3", "evidence at which a landmark is kept for good"),
+    p("existence_margin", "1", "a landmark counts as in view only this far (m) inside the field of view's edges"),
     p("move", "off", "'window': after each resampling, Metropolis-Hastings moves of every particle's last move_window poses with its landmarks held (slam::path_move; implicit only, the other methods ignore it); 'off': none"),
     p("move_window", "10", "poses moved per particle by the resample-move (W)"),
     p("move_sweeps", "1", "sweeps over the window per resample-move"),
@@ -185,7 +191,24 @@ pub fn run(
         msg: format!("'{exclusive}': need off, next or drop"),
     })?;
     let path_move = super::slam_run::parse_move(&ps)?;
+    // The detector's field of view (data README): trees between 1 m and
+    // the range cut, centre bearings inside the 2.9° edge bands it rejects.
+    let edge = 5.0 * std::f64::consts::PI / 306.0;
+    let existence = super::slam_run::parse_existence(
+        &ps,
+        ExistenceConfig {
+            min_range: 1.0,
+            min_bearing: edge,
+            max_bearing: std::f64::consts::PI - edge,
+            ..ExistenceConfig::half_circle(model.max_range)
+        },
+    )?;
     let per_run_path = ps.raw("per_run").map(str::to_string);
+    let trace_path = ps.raw("trace").map(str::to_string);
+    let mut trace = String::new();
+    if trace_path.is_some() {
+        trace.push_str("method,samples,run,time_s,x,y,known,new,discarded,removed\n");
+    }
     let mut per_run = String::from("method,samples,run,rms_m,p95_m,landmarks,move_accept\n");
     let plot = ps.raw("plot").map(str::to_string);
     let runs = runs.unwrap_or(1).max(1);
@@ -254,6 +277,7 @@ pub fn run(
     rep.param("association_given", if shared { "shared" } else { "ml" });
     rep.param("exclusive", exclusive.name());
     rep.param("move", super::slam_run::move_name(path_move));
+    rep.param("existence", super::slam_run::existence_name(existence));
     rep.lead_columns(&["samples", "rms_m", "p95_m", "landmarks", "time_ms"]);
     let (dr_rms, dr_p95) = rms_p95(&gps_errors(&times, &dr, &gps));
     rep.results.push(
@@ -282,6 +306,7 @@ pub fn run(
                 f.set_shared_association(shared);
                 f.set_exclusion(exclusive);
                 f.set_path_move(path_move)?;
+                f.set_existence(existence)?;
                 f.reset(&start);
                 let mut rng = stream(seed, r);
                 let mut path = vec![start; times.len()];
@@ -289,6 +314,19 @@ pub fn run(
                 for k in 1..times.len() {
                     let obs = scan_at[k].map_or(&empty[..], |i| &scan_obs[i][..]);
                     path[k] = f.step(controls[k - 1], times[k] - times[k - 1], obs, &mut rng)?;
+                    if trace_path.is_some() && !obs.is_empty() {
+                        let st = f.stats();
+                        trace.push_str(&format!(
+                            "{name},{m},{r},{},{},{},{},{},{},{}\n",
+                            times[k],
+                            path[k][0],
+                            path[k][1],
+                            st.known,
+                            st.new,
+                            st.discarded,
+                            st.removed
+                        ));
+                    }
                 }
                 let time_s = t0.elapsed().as_secs_f64();
                 let (rms, p95) = rms_p95(&gps_errors(&times, &path, &gps));
@@ -329,6 +367,7 @@ pub fn run(
                     })
                     .num("p95_m", avg(|x| x.1))
                     .num("landmarks", avg(|x| x.2))
+                    .num("removed", avg(|x| x.5.removed as f64))
                     .num("time_ms", avg(|x| x.3))
                     .num("time_s", avg(|x| x.4))
                     .int("runs", figs.len() as u64)
@@ -375,6 +414,12 @@ pub fn run(
     rep.notes.push(
         "times are wall-clock on a shared 2-core machine under load from other builds".into(),
     );
+    if let Some(path) = &trace_path {
+        std::fs::write(path, &trace).map_err(|e| LocalizationError::Io {
+            path: path.clone(),
+            source: e,
+        })?;
+    }
     if let Some(path) = &per_run_path {
         std::fs::write(path, &per_run).map_err(|e| LocalizationError::Param {
             key: "per_run".into(),

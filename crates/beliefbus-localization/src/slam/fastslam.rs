@@ -118,6 +118,7 @@ pub struct FastSlam {
     forced: Forced,
     shared: bool,
     scan: ScanAssoc,
+    existence: Option<super::existence::ExistenceConfig>,
 }
 
 impl FastSlam {
@@ -138,6 +139,7 @@ impl FastSlam {
             forced: Forced::with_capacity(32),
             shared: false,
             scan: ScanAssoc::with_capacity(32),
+            existence: None,
         })
     }
 }
@@ -182,6 +184,7 @@ impl SlamFilter for FastSlam {
         };
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
+            let before = self.set.maps[j].len();
             let x = self.set.x[j];
             let f = ute.predict_mean(&x, u);
             let t = frame_rotation(x[2]);
@@ -257,6 +260,13 @@ impl SlamFilter for FastSlam {
             }
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
+            if let Some(c) = &self.existence {
+                self.stats.removed +=
+                    self.set
+                        .apply_existence(c, j, before, &self.assoc, |l: &Landmark| {
+                            [l.m[0], l.m[1]]
+                        });
+            }
         }
         self.forced.clear();
         self.set.reweight(step, rng)?;

@@ -71,6 +71,7 @@ pub struct ImplicitSlam {
     forced: Forced,
     shared: bool,
     scan: ScanAssoc,
+    existence: Option<super::existence::ExistenceConfig>,
     assoc: Vec<Association>,
     mover: Option<PathWindow>,
 }
@@ -95,6 +96,7 @@ impl ImplicitSlam {
             forced: Forced::with_capacity(32),
             shared: false,
             scan: ScanAssoc::with_capacity(32),
+            existence: None,
             assoc: Vec::with_capacity(32),
             mover: None,
         })
@@ -171,6 +173,14 @@ impl SlamFilter for ImplicitSlam {
         obs: &[RangeBearing],
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
+        if self.mover.is_some() && self.existence.is_some() {
+            // The move's sighting lists hold landmark indices that removal
+            // would renumber.
+            return Err(LocalizationError::Param {
+                key: "existence".into(),
+                msg: "does not combine with the resample-move".into(),
+            });
+        }
         let parts = particle_filter_parts!(self);
         let StepSetup {
             step,
@@ -200,6 +210,7 @@ impl SlamFilter for ImplicitSlam {
             w.advance(ute, u, noise);
         }
         for j in 0..self.set.len() {
+            let before = self.set.maps[j].len();
             let x = self.set.x[j];
             let f = ute.predict_mean(&x, u);
             let t = crate::geometry::frame_rotation(x[2]);
@@ -344,6 +355,11 @@ impl SlamFilter for ImplicitSlam {
             }
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
+            if let Some(c) = &self.existence {
+                self.stats.removed +=
+                    self.set
+                        .apply_existence(c, j, before, &self.assoc, |l: &SampledLandmark| l.m);
+            }
             if let Some(w) = self.mover.as_mut() {
                 w.set_pose(j, xn);
             }

@@ -71,6 +71,7 @@ pub struct ImplicitRbSlam {
     assoc: Vec<Association>,
     forced: Forced,
     scan: ScanAssoc,
+    existence: Option<super::existence::ExistenceConfig>,
     shared: bool,
     terms: Vec<Term>,
 }
@@ -92,6 +93,7 @@ impl ImplicitRbSlam {
             assoc: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
             scan: ScanAssoc::with_capacity(32),
+            existence: None,
             shared: false,
             terms: Vec::with_capacity(32),
         })
@@ -208,6 +210,7 @@ impl SlamFilter for ImplicitRbSlam {
         };
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
+            let before = self.set.maps[j].len();
             let x = self.set.x[j];
             let f = ute.predict_mean(&x, u);
             let t = frame_rotation(x[2]);
@@ -296,6 +299,13 @@ impl SlamFilter for ImplicitRbSlam {
             }
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
+            if let Some(c) = &self.existence {
+                self.stats.removed +=
+                    self.set
+                        .apply_existence(c, j, before, &self.assoc, |l: &Landmark| {
+                            [l.m[0], l.m[1]]
+                        });
+            }
         }
         self.forced.clear();
         self.set.reweight(step, rng)?;

@@ -112,6 +112,7 @@ pub struct ImplicitRefineSlam {
     assoc: Vec<Association>,
     forced: Forced,
     scan: ScanAssoc,
+    existence: Option<super::existence::ExistenceConfig>,
     shared: bool,
     /// Per block of the arrow: the landmark index (None: new).
     block_lm: Vec<Option<usize>>,
@@ -138,6 +139,7 @@ impl ImplicitRefineSlam {
             assoc: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
             scan: ScanAssoc::with_capacity(32),
+            existence: None,
             shared: false,
             block_lm: Vec::with_capacity(32),
             zs: Vec::with_capacity(32),
@@ -186,6 +188,7 @@ impl SlamFilter for ImplicitRefineSlam {
         let (it, tol) = (self.newton.max_iter, self.newton.tol);
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
+            let before = self.set.maps[j].len();
             let x = self.set.x[j];
             let f = ute.predict_mean(&x, u);
             let t = crate::geometry::frame_rotation(x[2]);
@@ -331,6 +334,11 @@ impl SlamFilter for ImplicitRefineSlam {
             }
             self.set.x[j] = xn;
             self.set.logw[j] += lw;
+            if let Some(c) = &self.existence {
+                self.stats.removed +=
+                    self.set
+                        .apply_existence(c, j, before, &self.assoc, |l: &RefinedLandmark| l.m);
+            }
         }
         self.forced.clear();
         self.set.reweight(step, rng)?;

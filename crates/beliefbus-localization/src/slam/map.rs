@@ -69,6 +69,28 @@ impl<T: Clone> SharedMap<T> {
         k
     }
 
+    /// Remove landmark k, moving the last landmark into its place (the
+    /// order is not kept); copies the touched blocks if shared. Returns
+    /// false if k is past the end.
+    pub fn swap_remove(&mut self, k: usize) -> bool {
+        if k >= self.len {
+            return false;
+        }
+        let last = self.len - 1;
+        let lb = last / BLOCK;
+        let v = Arc::make_mut(&mut self.blocks[lb])
+            .pop()
+            .expect("the last block holds the last landmark");
+        if self.blocks[lb].is_empty() {
+            self.blocks.pop();
+        }
+        self.len -= 1;
+        if k < last {
+            Arc::make_mut(&mut self.blocks[k / BLOCK])[k % BLOCK] = v;
+        }
+        true
+    }
+
     /// Every landmark in index order.
     pub fn iter(&self) -> impl Iterator<Item = &T> {
         self.blocks.iter().flat_map(|b| b.iter())
@@ -134,5 +156,34 @@ mod tests {
         assert_eq!(v.len(), 41);
         assert_eq!(v[17], 1000);
         assert_eq!(v[39], 39);
+    }
+
+    #[test]
+    fn swap_remove_moves_the_last_and_leaves_copies_alone() {
+        let mut a: SharedMap<u32> = SharedMap::new();
+        for i in 0..33 {
+            a.push(i);
+        }
+        let mut b = SharedMap::new();
+        b.share_from(&a);
+        // Removing 5 moves 32 (alone in the third block) into slot 5.
+        assert!(b.swap_remove(5));
+        assert_eq!(b.len(), 32);
+        assert_eq!(b.get(5), Some(&32));
+        assert_eq!(b.get(32), None);
+        assert_eq!(b.shared_blocks_with(&a), 1);
+        assert_eq!(a.len(), 33);
+        assert_eq!(a.get(5), Some(&5));
+        // Removing the last element moves nothing.
+        assert!(b.swap_remove(31));
+        assert_eq!(b.len(), 31);
+        assert_eq!(b.get(30), Some(&30));
+        assert!(!b.swap_remove(31));
+        let mut c: SharedMap<u32> = SharedMap::new();
+        c.push(7);
+        assert!(c.swap_remove(0));
+        assert!(c.is_empty());
+        assert_eq!(c.push(8), 0);
+        assert_eq!(c.get(0), Some(&8));
     }
 }

@@ -49,6 +49,25 @@ macro_rules! particle_set_diagnostics {
             self.shared = on;
         }
 
+        fn set_existence(
+            &mut self,
+            cfg: Option<$crate::slam::existence::ExistenceConfig>,
+        ) -> Result<bool, $crate::error::LocalizationError> {
+            if let Some(c) = &cfg {
+                c.validate()?;
+                if self.shared {
+                    return Err($crate::error::LocalizationError::Param {
+                        key: "existence".into(),
+                        msg: "removing landmarks renumbers a particle's map; \
+                              it needs per-particle association"
+                            .into(),
+                    });
+                }
+            }
+            self.existence = cfg;
+            Ok(true)
+        }
+
         fn set_exclusion(&mut self, e: $crate::slam::scan_assoc::Exclusion) {
             self.scan.exclusive = e;
         }
@@ -83,6 +102,9 @@ pub mod assoc;
 mod diag_tests;
 pub mod driver;
 pub mod ekf;
+pub mod existence;
+#[cfg(test)]
+mod existence_tests;
 pub mod fastslam;
 pub mod implicit;
 pub mod implicit_rb;
@@ -179,6 +201,8 @@ pub struct SlamStats {
     pub known: usize,
     pub new: usize,
     pub discarded: usize,
+    /// Landmarks removed by the existence rule (summed over particles).
+    pub removed: usize,
 }
 
 /// An online SLAM filter: one call per odometry sample.
@@ -221,6 +245,16 @@ pub trait SlamFilter {
     /// Associate a scan's returns jointly, one landmark per return at most
     /// ([`scan_assoc`]), instead of each return on its own.
     fn set_exclusion(&mut self, _e: scan_assoc::Exclusion) {}
+    /// Landmark existence from negative information
+    /// ([`existence`]); `None` turns it off. Whether the filter has the
+    /// rule (`false`: the setting is ignored, as by EKF-SLAM). Refused
+    /// together with shared association.
+    fn set_existence(
+        &mut self,
+        _cfg: Option<existence::ExistenceConfig>,
+    ) -> Result<bool, LocalizationError> {
+        Ok(false)
+    }
     /// √(trace of the position covariance) of the current belief (m).
     fn position_spread(&self) -> f64;
     /// Particle filters: label every particle by its index in slot `slot`

@@ -27,11 +27,15 @@ pub const LINEAGE_SLOTS: usize = 4;
 pub struct SlamParticles<L: Clone> {
     pub x: Vec<Pose>,
     pub maps: Vec<SharedMap<L>>,
+    /// Each landmark's existence evidence ([`super::existence`]); empty
+    /// maps while the rule is off.
+    pub ev: Vec<SharedMap<f32>>,
     pub logw: Vec<f64>,
     pub w: Vec<f64>,
     anc: Vec<usize>,
     tmp_x: Vec<Pose>,
     tmp_maps: Vec<SharedMap<L>>,
+    tmp_ev: Vec<SharedMap<f32>>,
     lineage: Vec<[u32; LINEAGE_SLOTS]>,
     tmp_lineage: Vec<[u32; LINEAGE_SLOTS]>,
     pub ess_threshold: f64,
@@ -59,11 +63,13 @@ impl<L: Clone> SlamParticles<L> {
         Ok(Self {
             x: vec![Pose::zeros(); m],
             maps: vec![SharedMap::new(); m],
+            ev: vec![SharedMap::new(); m],
             logw: vec![0.0; m],
             w: vec![1.0 / m as f64; m],
             anc: vec![0; m],
             tmp_x: vec![Pose::zeros(); m],
             tmp_maps: vec![SharedMap::new(); m],
+            tmp_ev: vec![SharedMap::new(); m],
             lineage: vec![[0; LINEAGE_SLOTS]; m],
             tmp_lineage: vec![[0; LINEAGE_SLOTS]; m],
             ess_threshold,
@@ -88,6 +94,9 @@ impl<L: Clone> SlamParticles<L> {
         for mp in self.maps.iter_mut() {
             *mp = SharedMap::new();
         }
+        for e in self.ev.iter_mut() {
+            *e = SharedMap::new();
+        }
         self.logw.fill(0.0);
         self.w.fill(1.0 / m as f64);
         for slot in 0..LINEAGE_SLOTS {
@@ -110,11 +119,13 @@ impl<L: Clone> SlamParticles<L> {
             for (k, &a) in self.anc.iter().enumerate() {
                 self.tmp_x[k] = self.x[a];
                 self.tmp_maps[k].share_from(&self.maps[a]);
+                self.tmp_ev[k].share_from(&self.ev[a]);
                 self.tmp_lineage[k] = self.lineage[a];
             }
             std::mem::swap(&mut self.lineage, &mut self.tmp_lineage);
             std::mem::swap(&mut self.x, &mut self.tmp_x);
             std::mem::swap(&mut self.maps, &mut self.tmp_maps);
+            std::mem::swap(&mut self.ev, &mut self.tmp_ev);
             self.logw.fill(0.0);
             self.w.fill(1.0 / m as f64);
             self.resamplings += 1;
@@ -124,6 +135,20 @@ impl<L: Clone> SlamParticles<L> {
             }
         }
         Ok(s.ess)
+    }
+
+    /// The existence rule on particle j after its update (`before`: its
+    /// map's length before the scan); the number of landmarks removed.
+    pub fn apply_existence(
+        &mut self,
+        cfg: &super::existence::ExistenceConfig,
+        j: usize,
+        before: usize,
+        assoc: &[super::assoc::Association],
+        pos: impl Fn(&L) -> crate::geometry::Point,
+    ) -> usize {
+        let x = self.x[j];
+        cfg.apply(&mut self.maps[j], &mut self.ev[j], before, &x, assoc, pos)
     }
 
     /// The ancestor of each particle at the last resampling.
