@@ -59,7 +59,7 @@ use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::chain::{Chain, ChainConfig, NearRule, Sampler};
 use crate::rng::{self, SimRng};
 use anyhow::{Context, Result};
-use beliefbus_pomdp::chain_pomdp::{self, warm, ChainPomdp, ChainPomdpSpec, Terminal};
+use beliefbus_pomdp::chain_pomdp::{self, warm, ChainPomdp, ChainPomdpSpec, Rows, Terminal};
 use beliefbus_pomdp::solver::graph::Controller;
 use beliefbus_pomdp::{simulate, solve, AlphaPolicy, SimulateOptions, Solution, SolveOptions};
 use rand::{RngExt, SeedableRng};
@@ -76,6 +76,9 @@ mod model;
 mod params;
 #[path = "pomdp_light_dark_plot.rs"]
 mod plot;
+#[path = "pomdp_light_dark_replicates.rs"]
+mod replicates;
+use continuous::value as continuous_value;
 pub use model::{goal_2d, light_2d, Boxes, LightDark, LightDarkObs};
 pub use params::PARAMS;
 pub use plot::{trajectory, Step};
@@ -98,6 +101,8 @@ pub struct Setting {
     pub period: f64,
     /// κ_f of the 2-D chain's holding time (the thesis: 1).
     pub kappa_drift: f64,
+    /// The transition rows ([`Rows::Kernel`]: the thesis's).
+    pub rows: Rows,
 }
 
 fn quadratic_control(_z: &[f64], u: &[f64]) -> f64 {
@@ -168,53 +173,14 @@ pub fn one_d(s: &Setting) -> Result<ChainPomdp> {
     let goal = Boxes(vec![(vec![-0.9], 0.1)]);
     let obs = LightDarkObs { light, eps: s.eps };
     let spec = spec_for(&chain, &controls, &obs_pts, vec![1.0 / 20.0; 20], &goal, s);
-    Ok(chain_pomdp::build(
+    Ok(chain_pomdp::build_with(
         &chain,
         &m,
         &obs,
         &quadratic_control,
         &spec,
+        s.rows,
     )?)
-}
-
-/// The policy's value in the continuous `dim`-D problem
-/// ([`continuous::evaluate`]): 1-D from x₀ ~ U(−2, 2) (b₀ uniform on the
-/// grid), 2-D from N((−1.5, −0.5), 0.5² I).
-fn continuous_value(
-    cp: &ChainPomdp,
-    policy: &AlphaPolicy,
-    s: &Setting,
-    dim: usize,
-    runs: usize,
-    seed: u64,
-    chain_truth: bool,
-) -> continuous::Outcome {
-    let (light, goal, start) = if dim == 1 {
-        (
-            Boxes(vec![(vec![0.9], 0.1)]),
-            Boxes(vec![(vec![-0.9], 0.1)]),
-            continuous::Start::Uniform { lo: -2.0, hi: 2.0 },
-        )
-    } else {
-        (
-            light_2d(),
-            goal_2d(),
-            continuous::Start::Gaussian {
-                mean: vec![-1.5, -0.5],
-                std: 0.5,
-            },
-        )
-    };
-    let obs = LightDarkObs { light, eps: s.eps };
-    let p = continuous::Problem {
-        sigma: s.sigma,
-        obs: &obs,
-        goal: &goal,
-        start,
-        chain_truth,
-    };
-    let horizon = beliefbus_pomdp::simulate::horizon(&cp.pomdp, 1e-2);
-    continuous::evaluate(cp, policy, &p, runs, horizon, seed)
 }
 
 fn expected_reward(
@@ -325,7 +291,7 @@ pub fn two_d(
         let total: f64 = start.iter().sum();
         start.iter_mut().for_each(|v| *v /= total);
         let spec = spec_for(&chain, &controls, &obs_pts, start, &goal, s);
-        let cp = chain_pomdp::build(&chain, &m, &obs, &quadratic_control, &spec)?;
+        let cp = chain_pomdp::build_with(&chain, &m, &obs, &quadratic_control, &spec, s.rows)?;
         let secs = solve_s[k.min(solve_s.len() - 1)];
         let t0 = std::time::Instant::now();
         let initial = match (&prev, fresh) {
@@ -412,6 +378,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             "match_mean",
             "period_s",
             "kappa_drift",
+            "rows",
+            "solves",
         ]
         .contains(&k.as_str())
     });
@@ -437,7 +405,9 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         match_mean,
         period,
         kappa_drift,
+        rows: params::rows(args, &mut rep)?,
     };
+    let solves = p.usize(&mut rep, "solves", 1)?.max(1);
     rep.lead_columns(&[
         "problem",
         "states",
@@ -448,7 +418,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     ]);
     let mut prog = Progress::new(
         "pomdp-light-dark",
-        1 + sizes.len() + anytime.len(),
+        1 + sizes.len() * solves + anytime.len(),
         args.progress,
     );
 
@@ -484,49 +454,55 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     prog.tick();
 
     let carry_check = p.usize(&mut rep, "carry_check", 0)? > 0;
-    two_d(&sizes, &[solve_s], &s, args.seed, false, |z| {
-        let cp = z.cp;
-        if let (true, Some(prev)) = (carry_check, z.prev) {
-            let rows = carry::diagnose(prev, (cp, z.sol), z.carried_b0, &s, runs, args.seed);
-            for r in rows {
-                eprintln!("{r:?}");
-                rep.results.push(r);
+    // Independent solves: the chain's samples (and controls, observation
+    // points) from seed + r; the evaluation's random numbers stay `seed`.
+    for r in 0..solves as u64 {
+        two_d(&sizes, &[solve_s], &s, args.seed + r, false, |z| {
+            let cp = z.cp;
+            if let (true, Some(prev)) = (carry_check, z.prev) {
+                let rows = carry::diagnose(prev, (cp, z.sol), z.carried_b0, &s, runs, args.seed);
+                for r in rows {
+                    eprintln!("{r:?}");
+                    rep.results.push(r);
+                }
             }
-        }
-        let (m, se) = expected_reward(cp, &z.sol.policy, runs, args.seed)?;
-        let tc = std::time::Instant::now();
-        let c = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, false);
-        let continuous_s = tc.elapsed().as_secs_f64();
-        let on_chain = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, true);
-        let mut row = Row::new("chain-pomdp")
-            .text("problem", "2-D")
-            .int("states", cp.n_chain() as u64)
-            .num("solve_s", z.sol.time_s)
-            .num("reward", m)
-            .num("reward_se", se)
-            .num("reward_ci95", 1.96 * se)
-            .num("continuous", c.mean)
-            .num("continuous_se", c.std_err)
-            .num("goal_frac", c.goal_frac)
-            .num("declared_frac", c.declared_frac)
-            .num("declare_dist", c.declare_dist)
-            .num("belief_err", c.belief_err)
-            .num("continuous_s", continuous_s)
-            .num("chain_truth", on_chain.mean)
-            .num("chain_truth_se", on_chain.std_err)
-            .num("chain_truth_goal_frac", on_chain.goal_frac)
-            .num("lower_b0", z.sol.lower)
-            .num("upper_b0", z.sol.upper)
-            .num("period_s", cp.period)
-            .int("controls", cp.controls.len() as u64)
-            .int("observations", cp.observations.len() as u64);
-        if let Some(c) = z.carried_b0 {
-            row = row.num("carried_b0", c).num("carry_s", z.carry_s);
-        }
-        rep.results.push(row);
-        prog.tick();
-        Ok(())
-    })?;
+            let (m, se) = expected_reward(cp, &z.sol.policy, runs, args.seed)?;
+            let tc = std::time::Instant::now();
+            let c = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, false);
+            let continuous_s = tc.elapsed().as_secs_f64();
+            let on_chain = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, true);
+            let mut row = Row::new("chain-pomdp")
+                .text("problem", "2-D")
+                .int("states", cp.n_chain() as u64)
+                .int("solve", r)
+                .num("solve_s", z.sol.time_s)
+                .num("reward", m)
+                .num("reward_se", se)
+                .num("reward_ci95", 1.96 * se)
+                .num("continuous", c.mean)
+                .num("continuous_se", c.std_err)
+                .num("goal_frac", c.goal_frac)
+                .num("declared_frac", c.declared_frac)
+                .num("declare_dist", c.declare_dist)
+                .num("belief_err", c.belief_err)
+                .num("continuous_s", continuous_s)
+                .num("chain_truth", on_chain.mean)
+                .num("chain_truth_se", on_chain.std_err)
+                .num("chain_truth_goal_frac", on_chain.goal_frac)
+                .num("lower_b0", z.sol.lower)
+                .num("upper_b0", z.sol.upper)
+                .num("period_s", cp.period)
+                .int("controls", cp.controls.len() as u64)
+                .int("observations", cp.observations.len() as u64);
+            if let Some(c) = z.carried_b0 {
+                row = row.num("carried_b0", c).num("carry_s", z.carry_s);
+            }
+            rep.results.push(row);
+            prog.tick();
+            Ok(())
+        })?;
+    }
+    replicates::summarise(&mut rep);
     for &budget in &anytime {
         two_d(&[anytime_states], &[budget], &s, args.seed, true, |z| {
             let (m, se) = expected_reward(z.cp, &z.sol.policy, runs, args.seed)?;

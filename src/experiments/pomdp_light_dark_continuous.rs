@@ -25,7 +25,7 @@
 //! same x₀ and the same seeds (common random numbers; the noise sequences
 //! coincide only as far as the sizes' periods do).
 
-use super::{Boxes, LightDarkObs};
+use super::{goal_2d, light_2d, Boxes, LightDarkObs, Setting};
 use crate::rng;
 use beliefbus_pomdp::chain_pomdp::ChainPomdp;
 use beliefbus_pomdp::AlphaPolicy;
@@ -187,6 +187,46 @@ pub fn evaluate(
         declare_dist: dist / declared.max(1) as f64,
         belief_err: berr / declared.max(1) as f64,
     }
+}
+
+/// The policy's value in the continuous `dim`-D problem
+/// ([`evaluate`]): 1-D from x₀ ~ U(−2, 2) (b₀ uniform on the
+/// grid), 2-D from N((−1.5, −0.5), 0.5² I).
+pub fn value(
+    cp: &ChainPomdp,
+    policy: &AlphaPolicy,
+    s: &Setting,
+    dim: usize,
+    runs: usize,
+    seed: u64,
+    chain_truth: bool,
+) -> Outcome {
+    let (light, goal, start) = if dim == 1 {
+        (
+            Boxes(vec![(vec![0.9], 0.1)]),
+            Boxes(vec![(vec![-0.9], 0.1)]),
+            Start::Uniform { lo: -2.0, hi: 2.0 },
+        )
+    } else {
+        (
+            light_2d(),
+            goal_2d(),
+            Start::Gaussian {
+                mean: vec![-1.5, -0.5],
+                std: 0.5,
+            },
+        )
+    };
+    let obs = LightDarkObs { light, eps: s.eps };
+    let p = Problem {
+        sigma: s.sigma,
+        obs: &obs,
+        goal: &goal,
+        start,
+        chain_truth,
+    };
+    let horizon = beliefbus_pomdp::simulate::horizon(&cp.pomdp, 1e-2);
+    evaluate(cp, policy, &p, runs, horizon, seed)
 }
 
 /// The index where the cumulative sum of `w` passes `u`·Σw.
