@@ -70,6 +70,8 @@ use std::time::Duration;
 pub mod carry;
 #[path = "pomdp_light_dark_continuous.rs"]
 pub mod continuous;
+#[path = "pomdp_light_dark_goal.rs"]
+mod goal_cells;
 #[path = "pomdp_light_dark_model.rs"]
 mod model;
 #[path = "pomdp_light_dark_params.rs"]
@@ -103,6 +105,9 @@ pub struct Setting {
     pub kappa_drift: f64,
     /// The transition rows ([`Rows::Kernel`]: the thesis's).
     pub rows: Rows,
+    /// Terminal reward averaged over each state's cell ([`goal_cells`]);
+    /// false: at the state's point (the thesis's).
+    pub cell_goal: bool,
 }
 
 fn quadratic_control(_z: &[f64], u: &[f64]) -> f64 {
@@ -132,15 +137,21 @@ fn spec_for(
         obs_flush: 1e-6,
         match_mean: s.match_mean,
         terminal: Some(Terminal {
-            reward: (0..chain.len())
-                .map(|i| {
-                    if goal.contains(chain.state(i)) {
-                        1000.0
-                    } else {
-                        -1000.0
-                    }
-                })
-                .collect(),
+            reward: if s.cell_goal {
+                let (d, n) = (chain.dim(), chain.len());
+                let per_axis = if d == 1 { 4000 } else { 400 };
+                goal_cells::cell_rewards(&chain.states()[..n * d], d, goal, -2.0, 2.0, per_axis)
+            } else {
+                (0..chain.len())
+                    .map(|i| {
+                        if goal.contains(chain.state(i)) {
+                            1000.0
+                        } else {
+                            -1000.0
+                        }
+                    })
+                    .collect()
+            },
         }),
     }
 }
@@ -380,6 +391,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             "kappa_drift",
             "rows",
             "solves",
+            "goal_reward",
         ]
         .contains(&k.as_str())
     });
@@ -406,6 +418,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         period,
         kappa_drift,
         rows: params::rows(args, &mut rep)?,
+        cell_goal: params::cell_goal(args, &mut rep)?,
     };
     let solves = p.usize(&mut rep, "solves", 1)?.max(1);
     rep.lead_columns(&[

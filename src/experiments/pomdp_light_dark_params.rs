@@ -55,6 +55,11 @@ pub const PARAMS: &[ParamDoc] = &[
         "transition rows: kernel (the thesis's) or moment (mean z + u h exactly, spread tr(FF'h) or the least the states allow)",
     ),
     p(
+        "goal_reward",
+        "state",
+        "terminal reward at each state's point (state) or averaged over its Voronoi cell (cell)",
+    ),
+    p(
         "solves",
         "1",
         "independent 2-D solves (chains from seed, seed+1, ...), summarised per size in rows 'replicates'",
@@ -92,4 +97,24 @@ pub fn rows(
         },
     );
     Ok(rows)
+}
+
+/// `--param goal_reward=state|cell`: true for `cell`.
+pub fn cell_goal(
+    args: &crate::experiments::ExperimentArgs,
+    rep: &mut crate::experiments::ExperimentReport,
+) -> anyhow::Result<bool> {
+    let raw = args
+        .params
+        .iter()
+        .rev()
+        .find(|(k, _)| k == "goal_reward")
+        .map(|(_, v)| v.trim().to_string());
+    let cell = match raw.as_deref() {
+        None | Some("state") => false,
+        Some("cell") => true,
+        Some(v) => anyhow::bail!("--param goal_reward: 'state' or 'cell', not '{v}'"),
+    };
+    rep.param("goal_reward", if cell { "cell" } else { "state" });
+    Ok(cell)
 }

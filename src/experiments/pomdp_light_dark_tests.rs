@@ -10,6 +10,7 @@ fn setting() -> Setting {
         period: 0.0,
         kappa_drift: 1.0,
         rows: Rows::Kernel,
+        cell_goal: false,
     }
 }
 
