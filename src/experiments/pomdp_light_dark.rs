@@ -40,6 +40,12 @@
 //! * Diagnostics (defaults = the thesis's construction): `match_mean`,
 //!   `kappa_drift` (κ_f of the 2-D chain) and `period_s` (one decision
 //!   period at every size, δ = period/2^j).
+//! * `rows=moment`: one row per period with the mean exactly the clamped
+//!   z + u h ([`chain_pomdp::rows_moment`]; the 2-D chain then also holds
+//!   the box's four corners); `goal_reward=cell`: the terminal reward
+//!   averaged over each state's cell ([`goal_cells`]); `solves=N`: N
+//!   independent 2-D solves (chains from seeds seed, …, seed + N − 1; the
+//!   evaluations keep `seed`), summarised per size ([`replicates`]).
 //!
 //! The step is the thesis's Δt_n = min_{z,u} Δt(z,u) (no power-of-two
 //! rounding): with σ² ≪ r|u| every control moves about r per Δt(z,u), and
@@ -251,7 +257,16 @@ pub fn two_d(
         kappa_drift: s.kappa_drift,
         ..ChainConfig::gaussian(2).with_near(NearRule::Radius { gamma: 3.0 })
     };
-    let mut chain = Chain::batch(&m, cfg, &[1.5, -1.5])?;
+    // Moment rows: the box's corners are states too, so that the states'
+    // hull is the box and every row's mean is the clamped z + u h (without
+    // them the chain stops at its outermost samples where the system
+    // stops at the wall, and a plan that pushes into a corner finds the
+    // chain's "wall" somewhere else than the system's).
+    let corners: &[f64] = match s.rows {
+        Rows::Moment => &[1.5, -1.5, -2.0, -2.0, -2.0, 2.0, 2.0, -2.0, 2.0, 2.0],
+        Rows::Kernel => &[1.5, -1.5],
+    };
+    let mut chain = Chain::batch(&m, cfg, corners)?;
     let mut touched = Vec::new();
     let mut controls = vec![
         vec![0.0, 0.0],
