@@ -42,7 +42,7 @@
 //!   period at every size, δ = period/2^j).
 //! * `rows=moment`: one row per period with the mean exactly the clamped
 //!   z + u h ([`chain_pomdp::rows_moment`]; the 2-D chain then also holds
-//!   the box's four corners); `goal_reward=cell`: the terminal reward
+//!   32 states every 0.5 along the box's edges); `goal_reward=cell`: the terminal reward
 //!   averaged over each state's cell ([`goal_cells`]); `solves=N`: N
 //!   independent 2-D solves (chains from seeds seed, …, seed + N − 1; the
 //!   evaluations keep `seed`), summarised per size ([`replicates`]).
@@ -257,16 +257,19 @@ pub fn two_d(
         kappa_drift: s.kappa_drift,
         ..ChainConfig::gaussian(2).with_near(NearRule::Radius { gamma: 3.0 })
     };
-    // Moment rows: the box's corners are states too, so that the states'
-    // hull is the box and every row's mean is the clamped z + u h (without
-    // them the chain stops at its outermost samples where the system
-    // stops at the wall, and a plan that pushes into a corner finds the
-    // chain's "wall" somewhere else than the system's).
-    let corners: &[f64] = match s.rows {
-        Rows::Moment => &[1.5, -1.5, -2.0, -2.0, -2.0, 2.0, 2.0, -2.0, 2.0, 2.0],
-        Rows::Kernel => &[1.5, -1.5],
-    };
-    let mut chain = Chain::batch(&m, cfg, corners)?;
+    // Moment rows: states every 0.5 along the box's edges too, so that the
+    // states' hull is the box and every row's mean is the clamped z + u h;
+    // a point on an edge can only be a mixture of states on that edge
+    // (with the corners alone, one 3.5 away; without edge states the chain
+    // stops at its outermost samples where the system stops at the wall).
+    let mut corners = vec![1.5, -1.5];
+    if s.rows == Rows::Moment {
+        for k in 0..8 {
+            let t = -2.0 + 0.5 * k as f64;
+            corners.extend([t, -2.0, 2.0, t, -t, 2.0, -2.0, -t]);
+        }
+    }
+    let mut chain = Chain::batch(&m, cfg, &corners)?;
     let mut touched = Vec::new();
     let mut controls = vec![
         vec![0.0, 0.0],
