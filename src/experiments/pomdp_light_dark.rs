@@ -516,6 +516,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                 .num("declared_frac", c.declared_frac)
                 .num("declare_dist", c.declare_dist)
                 .num("belief_err", c.belief_err)
+                .num("lit_frac", c.lit_frac)
                 .num("continuous_s", continuous_s)
                 .num("chain_truth", on_chain.mean)
                 .num("chain_truth_se", on_chain.std_err)

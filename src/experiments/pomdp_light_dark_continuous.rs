@@ -68,6 +68,10 @@ pub struct Outcome {
     /// (whether the agent missed because it believed it was elsewhere).
     pub declare_dist: f64,
     pub belief_err: f64,
+    /// Over the declared episodes: the fraction whose truth was in a light
+    /// box at some decision before declaring (the plan localised in the
+    /// light, or at least passed through it).
+    pub lit_frac: f64,
 }
 
 /// Runs `policy` (solved on `cp`) for `runs` seeded episodes of at most
@@ -93,6 +97,7 @@ pub fn evaluate(
     let mut ret = Vec::with_capacity(runs);
     let (mut in_goal, mut declared) = (0usize, 0usize);
     let (mut dist, mut berr) = (0.0, 0.0);
+    let mut lit = 0usize;
     let inf_norm = |a: &[f64], b: &[f64]| {
         a.iter()
             .zip(b)
@@ -119,10 +124,12 @@ pub fn evaluate(
         }
         b.copy_from_slice(&cp.pomdp.start);
         let (mut total, mut disc) = (0.0, 1.0);
+        let mut seen_light = p.obs.light.contains(&x);
         for _ in 0..horizon {
             let a = policy.action(&b);
             let Some(u) = cp.control(a) else {
                 declared += 1;
+                lit += usize::from(seen_light);
                 dist += p
                     .goal
                     .0
@@ -153,6 +160,7 @@ pub fn evaluate(
                     x[i] = v.clamp(-2.0, 2.0);
                 }
             }
+            seen_light |= p.obs.light.contains(&x);
             let s = if p.obs.light.contains(&x) {
                 p.obs.eps
             } else {
@@ -186,6 +194,7 @@ pub fn evaluate(
         declared_frac: declared as f64 / n,
         declare_dist: dist / declared.max(1) as f64,
         belief_err: berr / declared.max(1) as f64,
+        lit_frac: lit as f64 / declared.max(1) as f64,
     }
 }
 
