@@ -40,6 +40,12 @@
 //! * Diagnostics (defaults = the thesis's construction): `match_mean`,
 //!   `kappa_drift` (κ_f of the 2-D chain) and `period_s` (one decision
 //!   period at every size, δ = period/2^j).
+//! * `rows=moment`: one row per period with the mean exactly the clamped
+//!   z + u h ([`chain_pomdp::rows_moment`]; the 2-D chain then also holds
+//!   32 states every 0.5 along the box's edges); `goal_reward=cell`: the terminal reward
+//!   averaged over each state's cell ([`goal_cells`]); `solves=N`: N
+//!   independent 2-D solves (chains from seeds seed, …, seed + N − 1; the
+//!   evaluations keep `seed`), summarised per size ([`replicates`]).
 //!
 //! The step is the thesis's Δt_n = min_{z,u} Δt(z,u) (no power-of-two
 //! rounding): with σ² ≪ r|u| every control moves about r per Δt(z,u), and
@@ -59,7 +65,7 @@ use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::chain::{Chain, ChainConfig, NearRule, Sampler};
 use crate::rng::{self, SimRng};
 use anyhow::{Context, Result};
-use beliefbus_pomdp::chain_pomdp::{self, warm, ChainPomdp, ChainPomdpSpec, Terminal};
+use beliefbus_pomdp::chain_pomdp::{self, warm, ChainPomdp, ChainPomdpSpec, Rows, Terminal};
 use beliefbus_pomdp::solver::graph::Controller;
 use beliefbus_pomdp::{simulate, solve, AlphaPolicy, SimulateOptions, Solution, SolveOptions};
 use rand::{RngExt, SeedableRng};
@@ -70,12 +76,17 @@ use std::time::Duration;
 pub mod carry;
 #[path = "pomdp_light_dark_continuous.rs"]
 pub mod continuous;
+#[path = "pomdp_light_dark_goal.rs"]
+mod goal_cells;
 #[path = "pomdp_light_dark_model.rs"]
 mod model;
 #[path = "pomdp_light_dark_params.rs"]
 mod params;
 #[path = "pomdp_light_dark_plot.rs"]
 mod plot;
+#[path = "pomdp_light_dark_replicates.rs"]
+mod replicates;
+use continuous::value as continuous_value;
 pub use model::{goal_2d, light_2d, Boxes, LightDark, LightDarkObs};
 pub use params::PARAMS;
 pub use plot::{trajectory, Step};
@@ -98,6 +109,11 @@ pub struct Setting {
     pub period: f64,
     /// κ_f of the 2-D chain's holding time (the thesis: 1).
     pub kappa_drift: f64,
+    /// The transition rows ([`Rows::Kernel`]: the thesis's).
+    pub rows: Rows,
+    /// Terminal reward averaged over each state's cell ([`goal_cells`]);
+    /// false: at the state's point (the thesis's).
+    pub cell_goal: bool,
 }
 
 fn quadratic_control(_z: &[f64], u: &[f64]) -> f64 {
@@ -127,15 +143,21 @@ fn spec_for(
         obs_flush: 1e-6,
         match_mean: s.match_mean,
         terminal: Some(Terminal {
-            reward: (0..chain.len())
-                .map(|i| {
-                    if goal.contains(chain.state(i)) {
-                        1000.0
-                    } else {
-                        -1000.0
-                    }
-                })
-                .collect(),
+            reward: if s.cell_goal {
+                let (d, n) = (chain.dim(), chain.len());
+                let per_axis = if d == 1 { 4000 } else { 400 };
+                goal_cells::cell_rewards(&chain.states()[..n * d], d, goal, -2.0, 2.0, per_axis)
+            } else {
+                (0..chain.len())
+                    .map(|i| {
+                        if goal.contains(chain.state(i)) {
+                            1000.0
+                        } else {
+                            -1000.0
+                        }
+                    })
+                    .collect()
+            },
         }),
     }
 }
@@ -168,53 +190,14 @@ pub fn one_d(s: &Setting) -> Result<ChainPomdp> {
     let goal = Boxes(vec![(vec![-0.9], 0.1)]);
     let obs = LightDarkObs { light, eps: s.eps };
     let spec = spec_for(&chain, &controls, &obs_pts, vec![1.0 / 20.0; 20], &goal, s);
-    Ok(chain_pomdp::build(
+    Ok(chain_pomdp::build_with(
         &chain,
         &m,
         &obs,
         &quadratic_control,
         &spec,
+        s.rows,
     )?)
-}
-
-/// The policy's value in the continuous `dim`-D problem
-/// ([`continuous::evaluate`]): 1-D from x₀ ~ U(−2, 2) (b₀ uniform on the
-/// grid), 2-D from N((−1.5, −0.5), 0.5² I).
-fn continuous_value(
-    cp: &ChainPomdp,
-    policy: &AlphaPolicy,
-    s: &Setting,
-    dim: usize,
-    runs: usize,
-    seed: u64,
-    chain_truth: bool,
-) -> continuous::Outcome {
-    let (light, goal, start) = if dim == 1 {
-        (
-            Boxes(vec![(vec![0.9], 0.1)]),
-            Boxes(vec![(vec![-0.9], 0.1)]),
-            continuous::Start::Uniform { lo: -2.0, hi: 2.0 },
-        )
-    } else {
-        (
-            light_2d(),
-            goal_2d(),
-            continuous::Start::Gaussian {
-                mean: vec![-1.5, -0.5],
-                std: 0.5,
-            },
-        )
-    };
-    let obs = LightDarkObs { light, eps: s.eps };
-    let p = continuous::Problem {
-        sigma: s.sigma,
-        obs: &obs,
-        goal: &goal,
-        start,
-        chain_truth,
-    };
-    let horizon = beliefbus_pomdp::simulate::horizon(&cp.pomdp, 1e-2);
-    continuous::evaluate(cp, policy, &p, runs, horizon, seed)
 }
 
 fn expected_reward(
@@ -274,7 +257,19 @@ pub fn two_d(
         kappa_drift: s.kappa_drift,
         ..ChainConfig::gaussian(2).with_near(NearRule::Radius { gamma: 3.0 })
     };
-    let mut chain = Chain::batch(&m, cfg, &[1.5, -1.5])?;
+    // Moment rows: states every 0.5 along the box's edges too, so that the
+    // states' hull is the box and every row's mean is the clamped z + u h;
+    // a point on an edge can only be a mixture of states on that edge
+    // (with the corners alone, one 3.5 away; without edge states the chain
+    // stops at its outermost samples where the system stops at the wall).
+    let mut corners = vec![1.5, -1.5];
+    if s.rows == Rows::Moment {
+        for k in 0..8 {
+            let t = -2.0 + 0.5 * k as f64;
+            corners.extend([t, -2.0, 2.0, t, -t, 2.0, -2.0, -t]);
+        }
+    }
+    let mut chain = Chain::batch(&m, cfg, &corners)?;
     let mut touched = Vec::new();
     let mut controls = vec![
         vec![0.0, 0.0],
@@ -325,7 +320,7 @@ pub fn two_d(
         let total: f64 = start.iter().sum();
         start.iter_mut().for_each(|v| *v /= total);
         let spec = spec_for(&chain, &controls, &obs_pts, start, &goal, s);
-        let cp = chain_pomdp::build(&chain, &m, &obs, &quadratic_control, &spec)?;
+        let cp = chain_pomdp::build_with(&chain, &m, &obs, &quadratic_control, &spec, s.rows)?;
         let secs = solve_s[k.min(solve_s.len() - 1)];
         let t0 = std::time::Instant::now();
         let initial = match (&prev, fresh) {
@@ -412,6 +407,9 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             "match_mean",
             "period_s",
             "kappa_drift",
+            "rows",
+            "solves",
+            "goal_reward",
         ]
         .contains(&k.as_str())
     });
@@ -437,7 +435,10 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         match_mean,
         period,
         kappa_drift,
+        rows: params::rows(args, &mut rep)?,
+        cell_goal: params::cell_goal(args, &mut rep)?,
     };
+    let solves = p.usize(&mut rep, "solves", 1)?.max(1);
     rep.lead_columns(&[
         "problem",
         "states",
@@ -448,7 +449,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     ]);
     let mut prog = Progress::new(
         "pomdp-light-dark",
-        1 + sizes.len() + anytime.len(),
+        1 + sizes.len() * solves + anytime.len(),
         args.progress,
     );
 
@@ -484,49 +485,56 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     prog.tick();
 
     let carry_check = p.usize(&mut rep, "carry_check", 0)? > 0;
-    two_d(&sizes, &[solve_s], &s, args.seed, false, |z| {
-        let cp = z.cp;
-        if let (true, Some(prev)) = (carry_check, z.prev) {
-            let rows = carry::diagnose(prev, (cp, z.sol), z.carried_b0, &s, runs, args.seed);
-            for r in rows {
-                eprintln!("{r:?}");
-                rep.results.push(r);
+    // Independent solves: the chain's samples (and controls, observation
+    // points) from seed + r; the evaluation's random numbers stay `seed`.
+    for r in 0..solves as u64 {
+        two_d(&sizes, &[solve_s], &s, args.seed + r, false, |z| {
+            let cp = z.cp;
+            if let (true, Some(prev)) = (carry_check, z.prev) {
+                let rows = carry::diagnose(prev, (cp, z.sol), z.carried_b0, &s, runs, args.seed);
+                for r in rows {
+                    eprintln!("{r:?}");
+                    rep.results.push(r);
+                }
             }
-        }
-        let (m, se) = expected_reward(cp, &z.sol.policy, runs, args.seed)?;
-        let tc = std::time::Instant::now();
-        let c = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, false);
-        let continuous_s = tc.elapsed().as_secs_f64();
-        let on_chain = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, true);
-        let mut row = Row::new("chain-pomdp")
-            .text("problem", "2-D")
-            .int("states", cp.n_chain() as u64)
-            .num("solve_s", z.sol.time_s)
-            .num("reward", m)
-            .num("reward_se", se)
-            .num("reward_ci95", 1.96 * se)
-            .num("continuous", c.mean)
-            .num("continuous_se", c.std_err)
-            .num("goal_frac", c.goal_frac)
-            .num("declared_frac", c.declared_frac)
-            .num("declare_dist", c.declare_dist)
-            .num("belief_err", c.belief_err)
-            .num("continuous_s", continuous_s)
-            .num("chain_truth", on_chain.mean)
-            .num("chain_truth_se", on_chain.std_err)
-            .num("chain_truth_goal_frac", on_chain.goal_frac)
-            .num("lower_b0", z.sol.lower)
-            .num("upper_b0", z.sol.upper)
-            .num("period_s", cp.period)
-            .int("controls", cp.controls.len() as u64)
-            .int("observations", cp.observations.len() as u64);
-        if let Some(c) = z.carried_b0 {
-            row = row.num("carried_b0", c).num("carry_s", z.carry_s);
-        }
-        rep.results.push(row);
-        prog.tick();
-        Ok(())
-    })?;
+            let (m, se) = expected_reward(cp, &z.sol.policy, runs, args.seed)?;
+            let tc = std::time::Instant::now();
+            let c = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, false);
+            let continuous_s = tc.elapsed().as_secs_f64();
+            let on_chain = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, true);
+            let mut row = Row::new("chain-pomdp")
+                .text("problem", "2-D")
+                .int("states", cp.n_chain() as u64)
+                .int("solve", r)
+                .num("solve_s", z.sol.time_s)
+                .num("reward", m)
+                .num("reward_se", se)
+                .num("reward_ci95", 1.96 * se)
+                .num("continuous", c.mean)
+                .num("continuous_se", c.std_err)
+                .num("goal_frac", c.goal_frac)
+                .num("declared_frac", c.declared_frac)
+                .num("declare_dist", c.declare_dist)
+                .num("belief_err", c.belief_err)
+                .num("lit_frac", c.lit_frac)
+                .num("continuous_s", continuous_s)
+                .num("chain_truth", on_chain.mean)
+                .num("chain_truth_se", on_chain.std_err)
+                .num("chain_truth_goal_frac", on_chain.goal_frac)
+                .num("lower_b0", z.sol.lower)
+                .num("upper_b0", z.sol.upper)
+                .num("period_s", cp.period)
+                .int("controls", cp.controls.len() as u64)
+                .int("observations", cp.observations.len() as u64);
+            if let Some(c) = z.carried_b0 {
+                row = row.num("carried_b0", c).num("carry_s", z.carry_s);
+            }
+            rep.results.push(row);
+            prog.tick();
+            Ok(())
+        })?;
+    }
+    replicates::summarise(&mut rep);
     for &budget in &anytime {
         two_d(&[anytime_states], &[budget], &s, args.seed, true, |z| {
             let (m, se) = expected_reward(z.cp, &z.sol.policy, runs, args.seed)?;

@@ -25,7 +25,7 @@
 //! same x₀ and the same seeds (common random numbers; the noise sequences
 //! coincide only as far as the sizes' periods do).
 
-use super::{Boxes, LightDarkObs};
+use super::{goal_2d, light_2d, Boxes, LightDarkObs, Setting};
 use crate::rng;
 use beliefbus_pomdp::chain_pomdp::ChainPomdp;
 use beliefbus_pomdp::AlphaPolicy;
@@ -68,6 +68,10 @@ pub struct Outcome {
     /// (whether the agent missed because it believed it was elsewhere).
     pub declare_dist: f64,
     pub belief_err: f64,
+    /// Over the declared episodes: the fraction whose truth was in a light
+    /// box at some decision before declaring (the plan localised in the
+    /// light, or at least passed through it).
+    pub lit_frac: f64,
 }
 
 /// Runs `policy` (solved on `cp`) for `runs` seeded episodes of at most
@@ -93,6 +97,7 @@ pub fn evaluate(
     let mut ret = Vec::with_capacity(runs);
     let (mut in_goal, mut declared) = (0usize, 0usize);
     let (mut dist, mut berr) = (0.0, 0.0);
+    let mut lit = 0usize;
     let inf_norm = |a: &[f64], b: &[f64]| {
         a.iter()
             .zip(b)
@@ -119,10 +124,12 @@ pub fn evaluate(
         }
         b.copy_from_slice(&cp.pomdp.start);
         let (mut total, mut disc) = (0.0, 1.0);
+        let mut seen_light = p.obs.light.contains(&x);
         for _ in 0..horizon {
             let a = policy.action(&b);
             let Some(u) = cp.control(a) else {
                 declared += 1;
+                lit += usize::from(seen_light);
                 dist += p
                     .goal
                     .0
@@ -153,6 +160,7 @@ pub fn evaluate(
                     x[i] = v.clamp(-2.0, 2.0);
                 }
             }
+            seen_light |= p.obs.light.contains(&x);
             let s = if p.obs.light.contains(&x) {
                 p.obs.eps
             } else {
@@ -186,7 +194,48 @@ pub fn evaluate(
         declared_frac: declared as f64 / n,
         declare_dist: dist / declared.max(1) as f64,
         belief_err: berr / declared.max(1) as f64,
+        lit_frac: lit as f64 / declared.max(1) as f64,
     }
+}
+
+/// The policy's value in the continuous `dim`-D problem
+/// ([`evaluate`]): 1-D from x₀ ~ U(−2, 2) (b₀ uniform on the
+/// grid), 2-D from N((−1.5, −0.5), 0.5² I).
+pub fn value(
+    cp: &ChainPomdp,
+    policy: &AlphaPolicy,
+    s: &Setting,
+    dim: usize,
+    runs: usize,
+    seed: u64,
+    chain_truth: bool,
+) -> Outcome {
+    let (light, goal, start) = if dim == 1 {
+        (
+            Boxes(vec![(vec![0.9], 0.1)]),
+            Boxes(vec![(vec![-0.9], 0.1)]),
+            Start::Uniform { lo: -2.0, hi: 2.0 },
+        )
+    } else {
+        (
+            light_2d(),
+            goal_2d(),
+            Start::Gaussian {
+                mean: vec![-1.5, -0.5],
+                std: 0.5,
+            },
+        )
+    };
+    let obs = LightDarkObs { light, eps: s.eps };
+    let p = Problem {
+        sigma: s.sigma,
+        obs: &obs,
+        goal: &goal,
+        start,
+        chain_truth,
+    };
+    let horizon = beliefbus_pomdp::simulate::horizon(&cp.pomdp, 1e-2);
+    evaluate(cp, policy, &p, runs, horizon, seed)
 }
 
 /// The index where the cumulative sum of `w` passes `u`·Σw.

@@ -50,8 +50,71 @@ pub const PARAMS: &[ParamDoc] = &[
         "decision period fixed across sizes (s); 0: the chain step of each size",
     ),
     p(
+        "rows",
+        "kernel",
+        "transition rows: kernel (the thesis's) or moment (mean z + u h exactly, spread tr(FF'h) or the least the states allow)",
+    ),
+    p(
+        "goal_reward",
+        "state",
+        "terminal reward at each state's point (state) or averaged over its Voronoi cell (cell)",
+    ),
+    p(
+        "solves",
+        "1",
+        "independent 2-D solves (chains from seed, seed+1, ...), summarised per size in rows 'replicates'",
+    ),
+    p(
         "kappa_drift",
         "1",
         "kappa_f of the 2-D chain's holding time r^2/(kappa_F |FF'| + kappa_f r |f|)",
     ),
 ];
+
+/// `--param rows=kernel|moment` (read directly: a word, not a number).
+pub fn rows(
+    args: &crate::experiments::ExperimentArgs,
+    rep: &mut crate::experiments::ExperimentReport,
+) -> anyhow::Result<beliefbus_pomdp::chain_pomdp::Rows> {
+    use beliefbus_pomdp::chain_pomdp::Rows;
+    let raw = args
+        .params
+        .iter()
+        .rev()
+        .find(|(k, _)| k == "rows")
+        .map(|(_, v)| v.trim().to_string());
+    let rows = match raw.as_deref() {
+        None | Some("kernel") => Rows::Kernel,
+        Some("moment") => Rows::Moment,
+        Some(v) => anyhow::bail!("--param rows: 'kernel' or 'moment', not '{v}'"),
+    };
+    rep.param(
+        "rows",
+        if rows == Rows::Moment {
+            "moment"
+        } else {
+            "kernel"
+        },
+    );
+    Ok(rows)
+}
+
+/// `--param goal_reward=state|cell`: true for `cell`.
+pub fn cell_goal(
+    args: &crate::experiments::ExperimentArgs,
+    rep: &mut crate::experiments::ExperimentReport,
+) -> anyhow::Result<bool> {
+    let raw = args
+        .params
+        .iter()
+        .rev()
+        .find(|(k, _)| k == "goal_reward")
+        .map(|(_, v)| v.trim().to_string());
+    let cell = match raw.as_deref() {
+        None | Some("state") => false,
+        Some("cell") => true,
+        Some(v) => anyhow::bail!("--param goal_reward: 'state' or 'cell', not '{v}'"),
+    };
+    rep.param("goal_reward", if cell { "cell" } else { "state" });
+    Ok(cell)
+}

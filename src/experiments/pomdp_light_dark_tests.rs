@@ -9,6 +9,8 @@ fn setting() -> Setting {
         match_mean: false,
         period: 0.0,
         kappa_drift: 1.0,
+        rows: Rows::Kernel,
+        cell_goal: false,
     }
 }
 

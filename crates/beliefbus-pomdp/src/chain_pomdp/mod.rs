@@ -31,13 +31,18 @@
 //! - **terminal action** (light-dark's u_goal): an extra action into an
 //!   absorbing state with reward `Terminal::reward(z)`.
 //!
-//! Layout: [`rows`] (holding times, kernels, the K-step rows), [`warm`]
+//! Layout: [`rows`] (holding times, kernels, the K-step rows),
+//! [`rows_moment`] (the alternative [`Rows::Moment`]: one row per decision
+//! period with the SDE's mean over h exactly and its covariance as closely
+//! as the states allow; [`lp`] its linear programs), [`warm`]
 //! (carrying a solution to a refined chain). Alg. 4.4's growth — the chain
 //! refined incrementally (Alg. 2.3), U and O grown to ⌊c ln n⌋ points
 //! ([`log_count`]) — is the caller's loop; each refined POMDP is rebuilt
 //! here and solved from the carried solution.
 
+pub mod lp;
 pub mod rows;
+pub mod rows_moment;
 pub mod warm;
 
 use crate::model::{ModelError, Pomdp, SparseRows};
@@ -211,6 +216,19 @@ impl ChainPomdp {
     }
 }
 
+/// How the transition rows over a decision period are made.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Rows {
+    /// The thesis's: the K-th power of the chain's equalised kernel rows
+    /// (module doc).
+    #[default]
+    Kernel,
+    /// One row per period h with mean exactly z + f(z,u) h and covariance
+    /// trace tr(FFᵀ h) where the states allow, else the least achievable
+    /// ([`rows_moment`]); δ, K and h are chosen as for `Kernel`.
+    Moment,
+}
+
 /// Builds the POMDP of the module doc on `chain` (see [`ChainPomdpSpec`]);
 /// `cost_rate(z, u)` is the running cost l per second.
 pub fn build<M: SdeModel>(
@@ -220,6 +238,19 @@ pub fn build<M: SdeModel>(
     cost_rate: &dyn Fn(&[f64], &[f64]) -> f64,
     spec: &ChainPomdpSpec,
 ) -> Result<ChainPomdp, ChainPomdpError> {
+    build_with(chain, model, obs, cost_rate, spec, Rows::Kernel)
+}
+
+/// [`build`] with the transition rows made by `rows`.
+pub fn build_with<M: SdeModel>(
+    chain: &Chain,
+    model: &M,
+    obs: &dyn ObservationModel,
+    cost_rate: &dyn Fn(&[f64], &[f64]) -> f64,
+    spec: &ChainPomdpSpec,
+    rows: Rows,
+) -> Result<ChainPomdp, ChainPomdpError> {
+    let row_kind = rows;
     let cfg = chain.config();
     if cfg.kernel != KernelKind::Gaussian || cfg.step.is_some() {
         return Err(ChainPomdpError::ChainKind);
@@ -301,7 +332,10 @@ pub fn build<M: SdeModel>(
         reward.push(r);
     }
     for (k, u) in kernels.iter().zip(&spec.controls) {
-        let mut rows = k.step_rows(chain, delta, steps, spec.row_flush);
+        let mut rows = match row_kind {
+            Rows::Kernel => k.step_rows(chain, delta, steps, spec.row_flush),
+            Rows::Moment => rows_moment::moment_rows(chain, model, u, period).rows,
+        };
         if terminal {
             rows.push(vec![(n as u32, 1.0)]);
         }

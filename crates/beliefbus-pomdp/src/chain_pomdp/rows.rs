@@ -259,6 +259,17 @@ fn nearest_beyond(chain: &Chain, i: usize, target: &[f64], v: &[f64]) -> Option<
 /// mean error, Hessian the tilted covariance), with step halving. Returns
 /// false (leaving `p` unchanged) if it does not converge.
 fn tilt_to_mean(d: usize, dz: &[f64], target: &[f64], p: &mut [f64]) -> bool {
+    tilt_to_mean_tol(d, dz, target, p, 1e-9)
+}
+
+/// [`tilt_to_mean`] to a mean error of `tol` × max |Δz|.
+pub(super) fn tilt_to_mean_tol(
+    d: usize,
+    dz: &[f64],
+    target: &[f64],
+    p: &mut [f64],
+    tol: f64,
+) -> bool {
     let scale = dz
         .iter()
         .fold(0.0f64, |m, v| m.max(v.abs()))
@@ -296,7 +307,7 @@ fn tilt_to_mean(d: usize, dz: &[f64], target: &[f64], p: &mut [f64]) -> bool {
         for c in 0..d {
             grad[c] -= target[c];
         }
-        if grad.iter().all(|g| g.abs() <= 1e-9 * scale) {
+        if grad.iter().all(|g| g.abs() <= tol * scale) {
             p.copy_from_slice(&q);
             return true;
         }
@@ -334,7 +345,7 @@ fn tilt_to_mean(d: usize, dz: &[f64], target: &[f64], p: &mut [f64]) -> bool {
 
 /// Solves the d × d system `a x = b` (row-major, overwritten) by Gaussian
 /// elimination with partial pivoting.
-fn solve_small(d: usize, a: &mut [f64], b: &[f64]) -> Option<Vec<f64>> {
+pub(super) fn solve_small(d: usize, a: &mut [f64], b: &[f64]) -> Option<Vec<f64>> {
     let mut x = b.to_vec();
     for c in 0..d {
         let piv = (c..d).max_by(|&i, &j| a[i * d + c].abs().total_cmp(&a[j * d + c].abs()))?;
