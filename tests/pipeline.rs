@@ -138,7 +138,16 @@ fn the_closed_loop_runs_across_five_processes_and_leaves_nothing_behind() {
     for s in ["ingest", "filter", "control", "refine", "plant"] {
         let st = &r["stages"][s];
         pids.insert(st["pid"].as_u64().unwrap());
-        assert!(st["processed"].as_u64().unwrap() > 100, "{s}: {st}");
+        let processed = st["processed"].as_u64().unwrap();
+        if s == "refine" {
+            // The background stage (nice 19) may be starved on a busy
+            // machine: it must have worked, and accounted for every
+            // belief it did not follow.
+            let dropped = st["dropped"].as_u64().unwrap();
+            assert!(processed > 0 && processed + dropped > 100, "{s}: {st}");
+        } else {
+            assert!(processed > 100, "{s}: {st}");
+        }
         assert_eq!(st["exit_status"], "exit 0", "{s}");
         assert_eq!(st["final_report"], true, "{s}");
     }

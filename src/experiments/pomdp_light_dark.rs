@@ -460,23 +460,19 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let light_first = plot::visits_light_before_goal(&cp1, &traj);
     let c1 = continuous_value(&cp1, &sol1.policy, &s, 1, runs, args.seed, false);
     rep.results.push(
-        Row::new("chain-pomdp")
-            .text("problem", "1-D")
-            .int("states", 20)
-            .num("solve_s", sol1.time_s)
-            .num("reward", m1)
-            .num("reward_se", se1)
-            .num("reward_ci95", 1.96 * se1)
-            .num("lower_b0", sol1.lower)
-            .num("upper_b0", sol1.upper)
-            .num("period_s", cp1.period)
-            .text("light_before_goal", if light_first { "yes" } else { "no" })
-            .num("continuous", c1.mean)
-            .num("continuous_se", c1.std_err)
-            .num("goal_frac", c1.goal_frac)
-            .num("declared_frac", c1.declared_frac)
-            .num("declare_dist", c1.declare_dist)
-            .num("belief_err", c1.belief_err),
+        c1.columns(
+            Row::new("chain-pomdp")
+                .text("problem", "1-D")
+                .int("states", 20)
+                .num("solve_s", sol1.time_s)
+                .num("reward", m1)
+                .num("reward_se", se1)
+                .num("reward_ci95", 1.96 * se1)
+                .num("lower_b0", sol1.lower)
+                .num("upper_b0", sol1.upper)
+                .num("period_s", cp1.period)
+                .text("light_before_goal", if light_first { "yes" } else { "no" }),
+        ),
     );
     if let Some(path) = &plot {
         plot::write(Path::new(path), &cp1, &traj)?;
@@ -502,21 +498,16 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
             let c = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, false);
             let continuous_s = tc.elapsed().as_secs_f64();
             let on_chain = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, true);
-            let mut row = Row::new("chain-pomdp")
+            let row = Row::new("chain-pomdp")
                 .text("problem", "2-D")
                 .int("states", cp.n_chain() as u64)
                 .int("solve", r)
                 .num("solve_s", z.sol.time_s)
                 .num("reward", m)
                 .num("reward_se", se)
-                .num("reward_ci95", 1.96 * se)
-                .num("continuous", c.mean)
-                .num("continuous_se", c.std_err)
-                .num("goal_frac", c.goal_frac)
-                .num("declared_frac", c.declared_frac)
-                .num("declare_dist", c.declare_dist)
-                .num("belief_err", c.belief_err)
-                .num("lit_frac", c.lit_frac)
+                .num("reward_ci95", 1.96 * se);
+            let mut row = c
+                .columns(row)
                 .num("continuous_s", continuous_s)
                 .num("chain_truth", on_chain.mean)
                 .num("chain_truth_se", on_chain.std_err)

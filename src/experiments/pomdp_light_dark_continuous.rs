@@ -74,6 +74,21 @@ pub struct Outcome {
     pub lit_frac: f64,
 }
 
+impl Outcome {
+    /// The experiment's columns for this outcome: `continuous` ± s.e.,
+    /// `goal_frac`, `declared_frac`, `declare_dist`, `belief_err`,
+    /// `lit_frac`.
+    pub fn columns(&self, row: super::Row) -> super::Row {
+        row.num("continuous", self.mean)
+            .num("continuous_se", self.std_err)
+            .num("goal_frac", self.goal_frac)
+            .num("declared_frac", self.declared_frac)
+            .num("declare_dist", self.declare_dist)
+            .num("belief_err", self.belief_err)
+            .num("lit_frac", self.lit_frac)
+    }
+}
+
 /// Runs `policy` (solved on `cp`) for `runs` seeded episodes of at most
 /// `horizon` decisions in the continuous problem `p` (module doc).
 pub fn evaluate(

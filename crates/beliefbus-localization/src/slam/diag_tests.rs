@@ -33,7 +33,8 @@ fn straight(secs: f64) -> Recording {
     }
 }
 
-fn model() -> SlamModel {
+/// The Ute with a thousandth of the default control noise, 15 m laser.
+pub(super) fn model() -> SlamModel {
     let d = MotionNoise::default();
     SlamModel {
         ute: Default::default(),

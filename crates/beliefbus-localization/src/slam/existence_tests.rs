@@ -12,9 +12,8 @@ use super::implicit_refine::ImplicitRefineSlam;
 use super::map::SharedMap;
 use super::{SlamFilter, SlamModel};
 use crate::geometry::{wrap_angle, Point, Pose};
-use crate::laser::LaserNoise;
 use crate::mcl::newton::NewtonSettings;
-use crate::vehicle::{Control, MotionNoise};
+use crate::vehicle::Control;
 use beliefbus_core::rng::stream;
 use std::f64::consts::FRAC_PI_2;
 
@@ -171,17 +170,7 @@ fn drive(f: &mut dyn SlamFilter, clutter: bool) -> (Vec<Pose>, Vec<Point>, usize
 
 #[test]
 fn every_particle_filter_is_unchanged_by_the_rule_when_every_landmark_in_view_is_seen() {
-    let d = MotionNoise::default();
-    let model = SlamModel {
-        ute: Default::default(),
-        motion: MotionNoise {
-            p: d.p.map(|v| v * 1e-3),
-            q: d.q.map(|v| v * 1e-3),
-        },
-        laser: LaserNoise::default(),
-        assoc: Default::default(),
-        max_range: 15.0,
-    };
+    let model = super::diag_tests::model();
     for (mut off, mut on) in filters(model).into_iter().zip(filters(model)) {
         assert!(on.set_existence(Some(cfg())).unwrap());
         let (p0, m0, r0) = drive(off.as_mut(), false);
