@@ -340,17 +340,6 @@ fn merged<'a>(hs: impl Iterator<Item = &'a LatencyHist>) -> LatencyHist {
     m
 }
 
-/// The stall probe's length: `--probe`, else `--duration` capped at 10 s.
-fn probe_seconds(a: &JitterArgs) -> Result<f64, LatencyError> {
-    let s = a.probe.unwrap_or(a.duration.min(10.0));
-    if !(s.is_finite() && (0.0..=3600.0).contains(&s)) {
-        return Err(LatencyError::BadArg(format!(
-            "--probe must be 0..=3600 seconds, got {s}"
-        )));
-    }
-    Ok(s)
-}
-
 /// `beliefbus jitter ...`.
 pub fn jitter(a: JitterArgs) -> Result<()> {
     let pipe = check(pipeline_config(&a))?;
@@ -396,7 +385,7 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
     let cores = timer_baseline(&cfg, stop)?;
     let baseline_host = crate::rt::host::loss(&host0, &crate::rt::host::snapshot(), &cfg.cores);
     drop(warm);
-    let probe_s = check(probe_seconds(&a))?;
+    let probe_s = check(probe::seconds(a.probe, a.duration))?;
     let stalls = if probe_s > 0.0 && !stop.load(std::sync::atomic::Ordering::Relaxed) {
         eprintln!(
             "host stall probe on cores {:?} for {probe_s:.1} s",
@@ -482,7 +471,10 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
         warnings,
     };
     let report = JitterReport {
-        host_stalls: probe::rows(&stalls, &probe::thresholds(report.pipeline.as_ref())),
+        host_stalls: probe::rows(
+            &stalls,
+            &probe::thresholds(report.pipeline.as_ref().map(|p| &p.stages)),
+        ),
         ..report
     };
     print!("{}", report.render());

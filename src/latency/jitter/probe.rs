@@ -4,9 +4,10 @@
 //! beside each stage's misses the rate of host stalls longer than that
 //! stage's budget on its core.
 
-use super::report::PipelineInfo;
+use crate::latency::pipeline::StageFigures;
 use crate::rt::stall::{CoreStalls, StallKind};
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 /// Thresholds every report has (µs); the pipeline's stage budgets are
 /// added to them.
@@ -31,11 +32,23 @@ pub struct StallRow {
     pub max_us: [f64; 3],
 }
 
-/// The thresholds: the fixed ones and the stage budgets, ascending.
-pub fn thresholds(pipeline: Option<&PipelineInfo>) -> Vec<f64> {
+/// The probe's length: `probe` (`--probe`), else `duration` capped at
+/// 10 s.
+pub fn seconds(probe: Option<f64>, duration: f64) -> Result<f64, crate::latency::LatencyError> {
+    let s = probe.unwrap_or(duration.min(10.0));
+    if !(s.is_finite() && (0.0..=3600.0).contains(&s)) {
+        return Err(crate::latency::LatencyError::BadArg(format!(
+            "--probe must be 0..=3600 seconds, got {s}"
+        )));
+    }
+    Ok(s)
+}
+
+/// The thresholds: the fixed ones and the stages' budgets, ascending.
+pub fn thresholds(stages: Option<&BTreeMap<String, StageFigures>>) -> Vec<f64> {
     let mut t: Vec<f64> = THRESHOLDS_US.to_vec();
-    if let Some(p) = pipeline {
-        t.extend(p.stages.values().filter_map(|f| f.budget_us));
+    if let Some(st) = stages {
+        t.extend(st.values().filter_map(|f| f.budget_us));
     }
     t.retain(|x| x.is_finite() && *x > 0.0);
     t.sort_by(f64::total_cmp);
@@ -75,7 +88,7 @@ pub fn rows(stalls: &[CoreStalls], thresholds_us: &[f64]) -> Vec<StallRow> {
 }
 
 /// The console lines.
-pub fn render(rows: &[StallRow], pipeline: Option<&PipelineInfo>) -> String {
+pub fn render(rows: &[StallRow], stages: Option<&BTreeMap<String, StageFigures>>) -> String {
     let Some(first) = rows.first() else {
         return String::new();
     };
@@ -106,10 +119,10 @@ pub fn render(rows: &[StallRow], pipeline: Option<&PipelineInfo>) -> String {
         }
     }
     s += "  (charged: the guest counted the time as the thread's own CPU — host exits not reported as steal, or this machine's interrupt handlers — so a stage's budget split calls such a miss an overrun; steal: reported by the hypervisor; switched: another task of this machine ran)\n";
-    let Some(p) = pipeline else {
+    let Some(stages) = stages else {
         return s;
     };
-    for (name, f) in &p.stages {
+    for (name, f) in stages {
         let (Some(core), Some(b)) = (f.core, f.budget_us) else {
             continue;
         };
@@ -157,23 +170,29 @@ mod tests {
     }
 
     #[test]
+    fn the_probe_lasts_as_asked_else_the_duration_up_to_10_s() {
+        assert_eq!(seconds(None, 3.0).unwrap(), 3.0);
+        assert_eq!(seconds(None, 60.0).unwrap(), 10.0);
+        assert_eq!(seconds(Some(0.0), 60.0).unwrap(), 0.0);
+        assert_eq!(seconds(Some(20.0), 1.0).unwrap(), 20.0);
+        for bad in [-1.0, f64::NAN, 4000.0] {
+            assert!(seconds(Some(bad), 1.0).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
     fn thresholds_add_the_stage_budgets_once_and_sort() {
         assert_eq!(thresholds(None), THRESHOLDS_US.to_vec());
-        let mut p: PipelineInfo = serde_json::from_value(serde_json::json!({
-            "config": "c", "sets": [], "sensor_rate_hz": 1000.0, "controls": 1,
-            "stages": {}, "hops": null
-        }))
-        .unwrap();
+        let mut stages = BTreeMap::new();
         for (name, b) in [("control", 700.0), ("filter", 300.0), ("ingest", 50.0)] {
             let f = serde_json::json!({
                 "processed": 1, "deadline_misses": 0, "budget_us": b,
                 "compute_p50_us": null, "compute_p99_us": null, "late": 0,
                 "lateness_p99_us": null, "core": 1
             });
-            p.stages
-                .insert(name.into(), serde_json::from_value(f).unwrap());
+            stages.insert(name.to_string(), serde_json::from_value(f).unwrap());
         }
-        let t = thresholds(Some(&p));
+        let t = thresholds(Some(&stages));
         assert_eq!(
             t,
             vec![50.0, 100.0, 200.0, 300.0, 500.0, 700.0, 1000.0, 5000.0]

@@ -246,7 +246,7 @@ impl JitterReport {
                 total - host
             );
         }
-        s += &super::probe::render(&self.host_stalls, self.pipeline.as_ref());
+        s += &super::probe::render(&self.host_stalls, self.pipeline.as_ref().map(|p| &p.stages));
         if let Some(p) = &self.pipeline {
             let a = |k: &str| {
                 p.accuracy[k]
