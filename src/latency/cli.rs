@@ -454,6 +454,7 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
             host: m.report_host.clone(),
         });
     }
+    let thresholds = probe::thresholds(info.as_ref().map(|p: &PipelineInfo| &p.stages));
     let report = JitterReport {
         date,
         rate_hz: cfg.rate_hz,
@@ -467,15 +468,8 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
         load,
         shm_left,
         baseline_host,
-        host_stalls: Vec::new(),
+        host_stalls: probe::rows(&stalls, &thresholds),
         warnings,
-    };
-    let report = JitterReport {
-        host_stalls: probe::rows(
-            &stalls,
-            &probe::thresholds(report.pipeline.as_ref().map(|p| &p.stages)),
-        ),
-        ..report
     };
     print!("{}", report.render());
     if let Some(path) = &a.json {

@@ -46,6 +46,7 @@
 use super::lp::{self, LpOutcome};
 use super::rows::tilt_to_mean_tol;
 use beliefbus_core::chain::Chain;
+use beliefbus_core::math::linalg;
 use beliefbus_core::model::SdeModel;
 use beliefbus_core::MAX_STATE;
 
@@ -316,13 +317,14 @@ fn wider(
     cand: &[usize],
 ) -> (Vec<usize>, Vec<f64>, Spread) {
     let n = pts.len() / d;
-    let chol = cholesky(d, cov).unwrap_or_else(|| {
-        let mut l = vec![0.0; d * d];
+    // Σ is symmetric, so its layout does not matter to the factorisation.
+    let mut chol = cov.to_vec();
+    if !linalg::cholesky(&mut chol, d) {
+        chol.fill(0.0);
         for a in 0..d {
-            l[a * d + a] = (tau / d as f64).sqrt();
+            chol[a * d + a] = (tau / d as f64).sqrt();
         }
-        l
-    });
+    }
     let dz_of = |j: usize| -> Vec<f64> { (0..d).map(|c| pts[j * d + c] - m[c]).collect() };
     let mut last: Vec<usize> = cand.to_vec();
     for c in [1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0] {
@@ -371,36 +373,13 @@ fn wider(
     (last, p, spread)
 }
 
-/// Lower Cholesky factor of the symmetric d × d `a`; `None` unless
-/// positive definite.
-fn cholesky(d: usize, a: &[f64]) -> Option<Vec<f64>> {
-    let mut l = vec![0.0; d * d];
-    for i in 0..d {
-        for j in 0..=i {
-            let s: f64 = a[i * d + j] - (0..j).map(|k| l[i * d + k] * l[j * d + k]).sum::<f64>();
-            if i == j {
-                if !(s > 0.0) {
-                    return None;
-                }
-                l[i * d + i] = s.sqrt();
-            } else {
-                l[i * d + j] = s / l[j * d + j];
-            }
-        }
-    }
-    Some(l)
-}
-
-/// vᵀ (L Lᵀ)⁻¹ v by forward substitution.
+/// vᵀ (L Lᵀ)⁻¹ v = |L⁻¹ v|² by forward substitution (L from
+/// [`linalg::cholesky`]).
 fn mahalanobis(d: usize, l: &[f64], v: &[f64]) -> f64 {
     let mut y = [0.0; MAX_STATE];
-    let mut q = 0.0;
-    for i in 0..d {
-        let s = v[i] - (0..i).map(|k| l[i * d + k] * y[k]).sum::<f64>();
-        y[i] = s / l[i * d + i];
-        q += y[i] * y[i];
-    }
-    q
+    y[..d].copy_from_slice(v);
+    linalg::forward_sub(l, d, &mut y[..d]);
+    y[..d].iter().map(|x| x * x).sum()
 }
 
 #[cfg(test)]
