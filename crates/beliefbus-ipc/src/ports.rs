@@ -67,15 +67,18 @@ message!(
     },
     |m| m.header()
 );
-// A small queue: every observation should be filtered, but a stalled filter
-// must not hold back ingest.
+// Every observation should be filtered: after a stall of its core the
+// plant catches up by up to 20 periods at once (plant::MAX_BEHIND), and a
+// queue of 32 holds such a burst whole. A stalled filter still never holds
+// back ingest: a full queue drops its oldest, which the filter counts as
+// lost.
 message!(
     Observation,
     "obs",
     Qos {
         history: 0,
-        max_buffer: 32,
-        default_buffer: 8,
+        max_buffer: 64,
+        default_buffer: 32,
         max_publishers: 2,
         max_subscribers: 8,
         max_nodes: 20,

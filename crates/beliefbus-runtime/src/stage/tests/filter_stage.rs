@@ -60,7 +60,7 @@ fn the_filter_accounts_for_every_observation_published() {
     let h = spawn(StageKind::Filter, &cfg, &stop);
     wait_ready(&stats, 1);
     let clock = MonotonicClock;
-    let n = 40u64;
+    let n = 80u64;
     for (o, _) in ship_observations(&cfg, n as usize, clock.now_ns()) {
         let k = o.header.seq;
         // Never delivered: 0..3 (as if published before the filter
