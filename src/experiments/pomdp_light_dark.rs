@@ -132,6 +132,9 @@ pub struct Setting {
     /// The 2-D box's edge is a cliff (−1000, the episode ends;
     /// [`chain_pomdp::cliff`]) in the chain and the truth; false: a wall.
     pub cliff: bool,
+    /// The 2-D solves' [`SolveOptions::trial_gap_fraction`] (0: HSVI2's
+    /// fixed-precision trials).
+    pub trial_gap: f64,
 }
 
 impl Setting {
@@ -188,7 +191,12 @@ fn spec_for(
 }
 
 fn solve_opts(secs: f64, initial: Option<Controller>) -> SolveOptions {
+    solve_opts_gap(secs, initial, 0.5)
+}
+
+fn solve_opts_gap(secs: f64, initial: Option<Controller>, trial_gap: f64) -> SolveOptions {
     SolveOptions {
+        trial_gap_fraction: trial_gap,
         precision: 1e-2,
         time_limit: Some(Duration::from_secs_f64(secs)),
         threads: 1,
@@ -385,7 +393,11 @@ pub fn two_d(
                 .map(|v| v.iter().zip(b0).map(|(a, b)| a * b).sum::<f64>())
                 .fold(f64::NEG_INFINITY, f64::max)
         });
-        let sol = solve(&cp.pomdp, &solve_opts(secs, initial), |_| {})?;
+        let sol = solve(
+            &cp.pomdp,
+            &solve_opts_gap(secs, initial, s.trial_gap),
+            |_| {},
+        )?;
         each(&Sized {
             cp: &cp,
             sol: &sol,
@@ -452,7 +464,12 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         rows: params::rows(args, &mut rep)?,
         cell_goal: params::cell_goal(args, &mut rep)?,
         cliff: params::cliff(args, &mut rep)?,
+        trial_gap: p.f64(&mut rep, "trial_gap", 0.5)?,
     };
+    anyhow::ensure!(
+        (0.0..1.0).contains(&s.trial_gap),
+        "--param trial_gap: a fraction in [0, 1)"
+    );
     let solves = p.usize(&mut rep, "solves", 1)?.max(1);
     rep.lead_columns(&[
         "problem",

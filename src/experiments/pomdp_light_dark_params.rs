@@ -80,6 +80,11 @@ pub const PARAMS: &[ParamDoc] = &[
         "the 2-D box's edge: wall (the system stops there) or cliff (reaching it ends the episode with -1000), in the chain and the truth",
     ),
     p(
+        "trial_gap",
+        "0.5",
+        "2-D solver: each trial aims at this fraction of the gap at b0 (0: the precision, HSVI2's deep trials)",
+    ),
+    p(
         "kappa_drift",
         "1",
         "kappa_f of the 2-D chain's holding time r^2/(kappa_F |FF'| + kappa_f r |f|)",

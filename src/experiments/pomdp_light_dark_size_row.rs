@@ -47,6 +47,7 @@ pub fn size_row(z: &Sized<'_>, s: &Setting, e: &Eval, before: &mut Before) -> Re
         .int("states", cp.n_chain() as u64)
         .int("solve", e.solve)
         .num("solve_s", z.sol.time_s)
+        .int("trials", z.sol.trials)
         .num("reward", m)
         .num("reward_se", se)
         .num("reward_ci95", 1.96 * se);

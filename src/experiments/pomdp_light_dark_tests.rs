@@ -12,6 +12,7 @@ fn setting() -> Setting {
         rows: Rows::Kernel,
         cell_goal: false,
         cliff: false,
+        trial_gap: 0.5,
     }
 }
 
