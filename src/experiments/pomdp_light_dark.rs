@@ -135,6 +135,8 @@ pub struct Setting {
     /// The 2-D solves' [`SolveOptions::trial_gap_fraction`] (0: HSVI2's
     /// fixed-precision trials).
     pub trial_gap: f64,
+    /// Regular states of the 1-D chain on [−1.9, 1.9] (the thesis: 20).
+    pub states_1d: usize,
 }
 
 impl Setting {
@@ -207,22 +209,34 @@ fn solve_opts_gap(secs: f64, initial: Option<Controller>, trial_gap: f64) -> Sol
     }
 }
 
-/// The 1-D problem on its 20-state grid.
+/// The 1-D problem on its regular grid of `s.states_1d` states on
+/// [−1.9, 1.9] (20: the thesis's −1.9, −1.7, …, 1.9).
 pub fn one_d(s: &Setting) -> Result<ChainPomdp> {
     let m = LightDark::new(1, s.sigma);
-    let pts: Vec<f64> = (0..20).map(|i| -1.9 + 0.2 * i as f64).collect();
+    let n = s.states_1d;
+    anyhow::ensure!(n >= 2, "--param states_1d: at least 2 states");
+    let pts: Vec<f64> = (0..n)
+        .map(|i| -1.9 + 3.8 * i as f64 / (n - 1) as f64)
+        .collect();
     let cfg = ChainConfig::gaussian(1).with_near(NearRule::Radius { gamma: 2.0 });
     let chain = Chain::batch(&m, cfg, &pts)?;
     let mut rng: SimRng = SimRng::seed_from_u64(0x1d);
     let mut controls = vec![vec![0.0], vec![-1.0], vec![1.0]];
-    while controls.len() < chain_pomdp::log_count(5.0, 20) {
+    while controls.len() < chain_pomdp::log_count(5.0, n) {
         controls.push(vec![rng.random_range(-1.0..1.0)]);
     }
     let obs_pts: Vec<Vec<f64>> = pts.iter().map(|&x| vec![x]).collect();
     let light = Boxes(vec![(vec![0.9], 0.1)]);
     let goal = Boxes(vec![(vec![-0.9], 0.1)]);
     let obs = LightDarkObs { light, eps: s.eps };
-    let spec = spec_for(&chain, &controls, &obs_pts, vec![1.0 / 20.0; 20], &goal, s);
+    let spec = spec_for(
+        &chain,
+        &controls,
+        &obs_pts,
+        vec![1.0 / n as f64; n],
+        &goal,
+        s,
+    );
     Ok(chain_pomdp::build_with(
         &chain,
         &m,
@@ -465,6 +479,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         cell_goal: params::cell_goal(args, &mut rep)?,
         cliff: params::cliff(args, &mut rep)?,
         trial_gap: p.f64(&mut rep, "trial_gap", 0.5)?,
+        states_1d: p.usize(&mut rep, "states_1d", 20)?,
     };
     anyhow::ensure!(
         (0.0..1.0).contains(&s.trial_gap),
@@ -495,7 +510,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         c1.columns(
             Row::new("chain-pomdp")
                 .text("problem", "1-D")
-                .int("states", 20)
+                .int("states", s.states_1d as u64)
                 .num("solve_s", sol1.time_s)
                 .num("reward", m1)
                 .num("reward_se", se1)

@@ -17,6 +17,7 @@ pub const PARAMS: &[ParamDoc] = &[
         "150",
         "2-D chain size of the anytime curve",
     ),
+    p("states_1d", "20", "regular 1-D chain states on [-1.9, 1.9]"),
     p("solve_1d_s", "10", "solver time of the 1-D problem (s)"),
     p("noise", "0.1", "diffusion sigma of dx = u dt + sigma dw"),
     p(

@@ -13,6 +13,7 @@ fn setting() -> Setting {
         cell_goal: false,
         cliff: false,
         trial_gap: 0.5,
+        states_1d: 20,
     }
 }
 
@@ -378,4 +379,26 @@ fn falling_off_the_cliff_in_one_period_has_the_chain_rows_first_passage_probabil
         let se = (p * (1.0 - p) / runs as f64).sqrt();
         assert!((mc - p).abs() < 4.0 * se + 1e-4, "x0 {x0:?}: {mc} vs {p}");
     }
+}
+
+#[test]
+fn one_d_grid_is_regular_on_its_interval_with_a_uniform_start() {
+    for n in [20, 40] {
+        let s = Setting {
+            states_1d: n,
+            ..setting()
+        };
+        let cp = one_d(&s).expect("1-D POMDP");
+        assert_eq!(cp.n_chain(), n);
+        let step = 3.8 / (n - 1) as f64;
+        for i in 0..n {
+            assert!((cp.state(i)[0] - (-1.9 + step * i as f64)).abs() < 1e-12);
+            assert!((cp.pomdp.start[i] - 1.0 / n as f64).abs() < 1e-15);
+        }
+    }
+    let one = Setting {
+        states_1d: 1,
+        ..setting()
+    };
+    assert!(one_d(&one).is_err());
 }
