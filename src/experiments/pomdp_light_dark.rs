@@ -45,7 +45,17 @@
 //!   32 states every 0.5 along the box's edges); `goal_reward=cell`: the terminal reward
 //!   averaged over each state's cell ([`goal_cells`]); `solves=N`: N
 //!   independent 2-D solves (chains from seeds seed, …, seed + N − 1; the
-//!   evaluations keep `seed`), summarised per size ([`replicates`]).
+//!   evaluations keep `seed`), summarised per size ([`replicates`]: mean
+//!   ± s.e. over the solves and the step from the previous size paired by
+//!   solve); `budget=per_state`: solve_s · n / (first n) per size.
+//! * The box's edge: a wall by default (the truth and the moment rows
+//!   clamp there). `wall_frac` is the fraction of episodes whose truth
+//!   reached it; `open=1` also runs each policy with no wall
+//!   (`continuous_open`, paired `open_minus_walls`): a plan that localises
+//!   against the wall fails there. `edge=cliff` makes reaching the edge
+//!   end the episode with −1000 in the chain ([`cliff::make_cliff`]) and
+//!   in the truth, so only the light can localise. Continuous returns of
+//!   consecutive sizes pair episode by episode (`continuous_step`).
 //!
 //! The step is the thesis's Δt_n = min_{z,u} Δt(z,u) (no power-of-two
 //! rounding): with σ² ≪ r|u| every control moves about r per Δt(z,u), and
@@ -65,7 +75,7 @@ use super::{ExperimentArgs, ExperimentReport, Progress, Row};
 use crate::chain::{Chain, ChainConfig, NearRule, Sampler};
 use crate::rng::{self, SimRng};
 use anyhow::{Context, Result};
-use beliefbus_pomdp::chain_pomdp::{self, warm, ChainPomdp, ChainPomdpSpec, Rows, Terminal};
+use beliefbus_pomdp::chain_pomdp::{self, cliff, warm, ChainPomdp, ChainPomdpSpec, Rows, Terminal};
 use beliefbus_pomdp::solver::graph::Controller;
 use beliefbus_pomdp::{simulate, solve, AlphaPolicy, SimulateOptions, Solution, SolveOptions};
 use rand::{RngExt, SeedableRng};
@@ -86,7 +96,9 @@ mod params;
 mod plot;
 #[path = "pomdp_light_dark_replicates.rs"]
 mod replicates;
-use continuous::value as continuous_value;
+#[path = "pomdp_light_dark_size_row.rs"]
+mod size_row;
+use continuous::{value as continuous_value, Edge, Truth};
 pub use model::{goal_2d, light_2d, Boxes, LightDark, LightDarkObs};
 pub use params::PARAMS;
 pub use plot::{trajectory, Step};
@@ -95,6 +107,9 @@ pub use plot::{trajectory, Step};
 /// at 150 states.
 pub const PAPER_STATES: [(usize, f64, f64); 2] = [(75, 377.9, 48.7), (150, 428.6, 55.2)];
 pub const PAPER_ANYTIME: [(f64, f64, f64); 2] = [(100.0, 212.1, 99.7), (200.0, 428.6, 55.2)];
+
+/// The continuous truth of the experiment's main columns: the box is a wall.
+const WALLS: Truth = Truth::Sde(Edge::Wall);
 
 /// Settings shared by both problems.
 #[derive(Clone, Copy, Debug)]
@@ -114,6 +129,21 @@ pub struct Setting {
     /// Terminal reward averaged over each state's cell ([`goal_cells`]);
     /// false: at the state's point (the thesis's).
     pub cell_goal: bool,
+    /// The 2-D box's edge is a cliff (−1000, the episode ends;
+    /// [`chain_pomdp::cliff`]) in the chain and the truth; false: a wall.
+    pub cliff: bool,
+    /// The 2-D solves' [`SolveOptions::trial_gap_fraction`] (0: HSVI2's
+    /// fixed-precision trials).
+    pub trial_gap: f64,
+    /// Regular states of the 1-D chain on [−1.9, 1.9] (the thesis: 20).
+    pub states_1d: usize,
+}
+
+impl Setting {
+    /// The continuous truth of the main columns.
+    pub fn truth(&self) -> Truth {
+        Truth::Sde(if self.cliff { Edge::Cliff } else { Edge::Wall })
+    }
 }
 
 fn quadratic_control(_z: &[f64], u: &[f64]) -> f64 {
@@ -163,7 +193,12 @@ fn spec_for(
 }
 
 fn solve_opts(secs: f64, initial: Option<Controller>) -> SolveOptions {
+    solve_opts_gap(secs, initial, 0.5)
+}
+
+fn solve_opts_gap(secs: f64, initial: Option<Controller>, trial_gap: f64) -> SolveOptions {
     SolveOptions {
+        trial_gap_fraction: trial_gap,
         precision: 1e-2,
         time_limit: Some(Duration::from_secs_f64(secs)),
         threads: 1,
@@ -174,22 +209,34 @@ fn solve_opts(secs: f64, initial: Option<Controller>) -> SolveOptions {
     }
 }
 
-/// The 1-D problem on its 20-state grid.
+/// The 1-D problem on its regular grid of `s.states_1d` states on
+/// [−1.9, 1.9] (20: the thesis's −1.9, −1.7, …, 1.9).
 pub fn one_d(s: &Setting) -> Result<ChainPomdp> {
     let m = LightDark::new(1, s.sigma);
-    let pts: Vec<f64> = (0..20).map(|i| -1.9 + 0.2 * i as f64).collect();
+    let n = s.states_1d;
+    anyhow::ensure!(n >= 2, "--param states_1d: at least 2 states");
+    let pts: Vec<f64> = (0..n)
+        .map(|i| -1.9 + 3.8 * i as f64 / (n - 1) as f64)
+        .collect();
     let cfg = ChainConfig::gaussian(1).with_near(NearRule::Radius { gamma: 2.0 });
     let chain = Chain::batch(&m, cfg, &pts)?;
     let mut rng: SimRng = SimRng::seed_from_u64(0x1d);
     let mut controls = vec![vec![0.0], vec![-1.0], vec![1.0]];
-    while controls.len() < chain_pomdp::log_count(5.0, 20) {
+    while controls.len() < chain_pomdp::log_count(5.0, n) {
         controls.push(vec![rng.random_range(-1.0..1.0)]);
     }
     let obs_pts: Vec<Vec<f64>> = pts.iter().map(|&x| vec![x]).collect();
     let light = Boxes(vec![(vec![0.9], 0.1)]);
     let goal = Boxes(vec![(vec![-0.9], 0.1)]);
     let obs = LightDarkObs { light, eps: s.eps };
-    let spec = spec_for(&chain, &controls, &obs_pts, vec![1.0 / 20.0; 20], &goal, s);
+    let spec = spec_for(
+        &chain,
+        &controls,
+        &obs_pts,
+        vec![1.0 / n as f64; n],
+        &goal,
+        s,
+    );
     Ok(chain_pomdp::build_with(
         &chain,
         &m,
@@ -317,10 +364,24 @@ pub fn two_d(
                 (-q / (2.0 * 0.25)).exp() * chain.cell_volume(i)
             })
             .collect();
+        if s.cliff {
+            // The continuous start is inside the box: none on its edge
+            // (a state there falls at once).
+            for (i, v) in start.iter_mut().enumerate() {
+                if chain.state(i).iter().any(|x| x.abs() >= 2.0) {
+                    *v = 0.0;
+                }
+            }
+        }
         let total: f64 = start.iter().sum();
         start.iter_mut().for_each(|v| *v /= total);
         let spec = spec_for(&chain, &controls, &obs_pts, start, &goal, s);
-        let cp = chain_pomdp::build_with(&chain, &m, &obs, &quadratic_control, &spec, s.rows)?;
+        let mut cp = chain_pomdp::build_with(&chain, &m, &obs, &quadratic_control, &spec, s.rows)?;
+        if s.cliff {
+            let sig = [s.sigma; 2];
+            let drift = |_: &[f64], u: &[f64], f: &mut [f64]| f.copy_from_slice(u);
+            cliff::make_cliff(&mut cp, &drift, &sig, &[-2.0; 2], &[2.0; 2], 1000.0)?;
+        }
         let secs = solve_s[k.min(solve_s.len() - 1)];
         let t0 = std::time::Instant::now();
         let initial = match (&prev, fresh) {
@@ -346,7 +407,11 @@ pub fn two_d(
                 .map(|v| v.iter().zip(b0).map(|(a, b)| a * b).sum::<f64>())
                 .fold(f64::NEG_INFINITY, f64::max)
         });
-        let sol = solve(&cp.pomdp, &solve_opts(secs, initial), |_| {})?;
+        let sol = solve(
+            &cp.pomdp,
+            &solve_opts_gap(secs, initial, s.trial_gap),
+            |_| {},
+        )?;
         each(&Sized {
             cp: &cp,
             sol: &sol,
@@ -390,32 +455,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         .rev()
         .find(|(k, _)| k == "plot")
         .map(|(_, v)| v.clone());
-    // anytime_s (a list of reals) and plot (a path) are read directly;
-    // every key is checked here.
-    let bad = args.params.iter().find(|(k, _)| {
-        ![
-            "states",
-            "solve_s",
-            "anytime_s",
-            "anytime_states",
-            "solve_1d_s",
-            "noise",
-            "epsilon",
-            "rate",
-            "plot",
-            "carry_check",
-            "match_mean",
-            "period_s",
-            "kappa_drift",
-            "rows",
-            "solves",
-            "goal_reward",
-        ]
-        .contains(&k.as_str())
-    });
-    if let Some((k, _)) = bad {
-        anyhow::bail!("unknown --param '{k}'");
-    }
+    params::check_keys(args)?;
     anyhow::ensure!(
         sigma > 0.0 && eps > 0.0 && rate > 0.0 && solve_s > 0.0 && solve_1d_s > 0.0,
         "noise, epsilon, rate and solver times must be positive"
@@ -437,7 +477,14 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         kappa_drift,
         rows: params::rows(args, &mut rep)?,
         cell_goal: params::cell_goal(args, &mut rep)?,
+        cliff: params::cliff(args, &mut rep)?,
+        trial_gap: p.f64(&mut rep, "trial_gap", 0.5)?,
+        states_1d: p.usize(&mut rep, "states_1d", 20)?,
     };
+    anyhow::ensure!(
+        (0.0..1.0).contains(&s.trial_gap),
+        "--param trial_gap: a fraction in [0, 1)"
+    );
     let solves = p.usize(&mut rep, "solves", 1)?.max(1);
     rep.lead_columns(&[
         "problem",
@@ -458,12 +505,12 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let (m1, se1) = expected_reward(&cp1, &sol1.policy, runs, args.seed)?;
     let traj = trajectory(&cp1, &sol1.policy, args.seed, 200);
     let light_first = plot::visits_light_before_goal(&cp1, &traj);
-    let c1 = continuous_value(&cp1, &sol1.policy, &s, 1, runs, args.seed, false);
+    let c1 = continuous_value(&cp1, &sol1.policy, &s, 1, runs, args.seed, WALLS);
     rep.results.push(
         c1.columns(
             Row::new("chain-pomdp")
                 .text("problem", "1-D")
-                .int("states", 20)
+                .int("states", s.states_1d as u64)
                 .num("solve_s", sol1.time_s)
                 .num("reward", m1)
                 .num("reward_se", se1)
@@ -481,10 +528,15 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     prog.tick();
 
     let carry_check = p.usize(&mut rep, "carry_check", 0)? > 0;
+    let open = p.usize(&mut rep, "open", 0)? > 0;
+    let budgets = params::budgets(args, &mut rep, &sizes, solve_s)?;
     // Independent solves: the chain's samples (and controls, observation
     // points) from seed + r; the evaluation's random numbers stay `seed`.
     for r in 0..solves as u64 {
-        two_d(&sizes, &[solve_s], &s, args.seed + r, false, |z| {
+        // The previous size's continuous outcomes (walls, open) in this
+        // solve: same seed and period, so the returns pair episode by episode.
+        let mut before: size_row::Before = None;
+        two_d(&sizes, &budgets, &s, args.seed + r, false, |z| {
             let cp = z.cp;
             if let (true, Some(prev)) = (carry_check, z.prev) {
                 let rows = carry::diagnose(prev, (cp, z.sol), z.carried_b0, &s, runs, args.seed);
@@ -493,33 +545,13 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                     rep.results.push(r);
                 }
             }
-            let (m, se) = expected_reward(cp, &z.sol.policy, runs, args.seed)?;
-            let tc = std::time::Instant::now();
-            let c = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, false);
-            let continuous_s = tc.elapsed().as_secs_f64();
-            let on_chain = continuous_value(cp, &z.sol.policy, &s, 2, runs, args.seed, true);
-            let row = Row::new("chain-pomdp")
-                .text("problem", "2-D")
-                .int("states", cp.n_chain() as u64)
-                .int("solve", r)
-                .num("solve_s", z.sol.time_s)
-                .num("reward", m)
-                .num("reward_se", se)
-                .num("reward_ci95", 1.96 * se);
-            let mut row = c
-                .columns(row)
-                .num("continuous_s", continuous_s)
-                .num("chain_truth", on_chain.mean)
-                .num("chain_truth_se", on_chain.std_err)
-                .num("chain_truth_goal_frac", on_chain.goal_frac)
-                .num("lower_b0", z.sol.lower)
-                .num("upper_b0", z.sol.upper)
-                .num("period_s", cp.period)
-                .int("controls", cp.controls.len() as u64)
-                .int("observations", cp.observations.len() as u64);
-            if let Some(c) = z.carried_b0 {
-                row = row.num("carried_b0", c).num("carry_s", z.carry_s);
-            }
+            let e = size_row::Eval {
+                runs,
+                seed: args.seed,
+                open,
+                solve: r,
+            };
+            let row = size_row::size_row(z, &s, &e, &mut before)?;
             rep.results.push(row);
             prog.tick();
             Ok(())

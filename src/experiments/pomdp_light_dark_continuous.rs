@@ -5,7 +5,7 @@
 //! §3 as the belief).
 //!
 //! ```text
-//! truth:   x ← clamp(x + u δ_e + σ √δ_e ξ),  ξ ~ N(0, I)    (Euler–Maruyama, m = K steps of δ_e = h/K per decision)
+//! truth:   x ← clamp(x + u δ_e + σ √δ_e ξ),  ξ ~ N(0, I)    (Euler–Maruyama, 16 steps of δ_e = h/16 per decision)
 //! measure: y = x_{k+1} + G(x_{k+1}) v,  v ~ N(0, I),  G = ε in the light, 1/ε in the dark
 //! filter:  b̄(z') = Σ_z b(z) T(z'|z, a_k),  b_{k+1}(z') ∝ b̄(z') p(y | z')     (ChainPomdp::update)
 //! act:     a_k = action(argmax_α α·b_k)
@@ -22,8 +22,21 @@
 //!
 //! Run `i` draws from random stream `(seed, i)` — split into the start,
 //! the dynamics noise and the measurement noise — so every size sees the
-//! same x₀ and the same seeds (common random numbers; the noise sequences
-//! coincide only as far as the sizes' periods do).
+//! same x₀ and the same seeds (common random numbers). The Euler step
+//! count is fixed ([`EULER_STEPS`], not the chain's K) so that two sizes
+//! with the same period draw the same noise for the same decision: their
+//! returns pair episode by episode ([`Outcome::returns`]).
+//!
+//! The box [−2, 2]^d is, for the truth, a wall ([`Edge::Wall`]: the clamp
+//! above, as the moment rows clamp the mean), nothing ([`Edge::Open`]: x
+//! moves freely; the chain's states still stop at the box) or a cliff
+//! ([`Edge::Cliff`]: a path that reaches it — at a step's end, or between
+//! steps with the Brownian bridge's probability exp(−2 a₀ a₁/(σ² δ_e)),
+//! a₀, a₁ the distances to the edge at the step's ends — ends the episode
+//! with −1000; x₀ is then drawn inside the box, not clamped onto it; the
+//! chain POMDP of [`beliefbus_pomdp::chain_pomdp::cliff`]). A plan that
+//! localises by pushing into a wall loses its fix without walls and dies
+//! on a cliff; one that localises in the light does not (`wall_frac`).
 
 use super::{goal_2d, light_2d, Boxes, LightDarkObs, Setting};
 use crate::rng;
@@ -31,6 +44,28 @@ use beliefbus_pomdp::chain_pomdp::ChainPomdp;
 use beliefbus_pomdp::AlphaPolicy;
 use rand::RngExt;
 use rand_distr::StandardNormal;
+
+/// Euler–Maruyama steps per decision period of the continuous truth.
+pub const EULER_STEPS: usize = 16;
+
+/// What the box's edge is to the continuous truth (module doc).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Edge {
+    Wall,
+    Open,
+    Cliff,
+}
+
+/// What moves the true state.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Truth {
+    /// dx = u dt + σ dw with the box's edge as given.
+    Sde(Edge),
+    /// The chain itself (x₀ ~ b₀ on the states, each period a draw from
+    /// T(·|z, a)): the model the policy was solved for, so that the same
+    /// filter and lookup can be checked where the policy is known to work.
+    Chain,
+}
 
 /// The continuous start distribution (clamped to the domain [−2, 2]^d).
 #[derive(Clone, Debug)]
@@ -47,16 +82,12 @@ pub struct Problem<'a> {
     pub obs: &'a LightDarkObs,
     pub goal: &'a Boxes,
     pub start: Start,
-    /// Replace the truth by the chain itself (x₀ ~ b₀ on the states, each
-    /// period a draw from T(·|z, a)): the model the policy was solved for,
-    /// so that the same filter and lookup can be checked where the policy
-    /// is known to work.
-    pub chain_truth: bool,
+    pub truth: Truth,
 }
 
 /// Mean discounted reward with its standard error, and the fraction of
 /// episodes that end with the terminal action inside the goal.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Outcome {
     pub mean: f64,
     pub std_err: f64,
@@ -72,6 +103,15 @@ pub struct Outcome {
     /// box at some decision before declaring (the plan localised in the
     /// light, or at least passed through it).
     pub lit_frac: f64,
+    /// The fraction of episodes whose truth reached the box's edge (with
+    /// walls: was clamped; without: left the box) by a move before
+    /// declaring (or before the horizon, if it never declared).
+    pub wall_frac: f64,
+    /// The fraction of episodes ended by falling off a cliff edge.
+    pub crash_frac: f64,
+    /// Each episode's discounted return, in run order (for paired
+    /// differences between policies evaluated with the same seed).
+    pub returns: Vec<f64>,
 }
 
 impl Outcome {
@@ -86,6 +126,27 @@ impl Outcome {
             .num("declare_dist", self.declare_dist)
             .num("belief_err", self.belief_err)
             .num("lit_frac", self.lit_frac)
+            .num("wall_frac", self.wall_frac)
+            .num("crash_frac", self.crash_frac)
+    }
+
+    /// Mean and standard error of the episode-by-episode difference
+    /// `self − other` (common random numbers: both evaluated with the same
+    /// seed and period); `None` if the run counts differ.
+    pub fn paired_diff(&self, other: &Outcome) -> Option<(f64, f64)> {
+        let n = self.returns.len();
+        if n < 2 || other.returns.len() != n {
+            return None;
+        }
+        let d: Vec<f64> = self
+            .returns
+            .iter()
+            .zip(&other.returns)
+            .map(|(a, b)| a - b)
+            .collect();
+        let mean = d.iter().sum::<f64>() / n as f64;
+        let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+        Some((mean, (var / n as f64).sqrt()))
     }
 }
 
@@ -101,8 +162,15 @@ pub fn evaluate(
 ) -> Outcome {
     let d = cp.dim;
     let h = cp.period;
-    let m = cp.steps.max(1);
+    let m = EULER_STEPS;
     let de = h / m as f64;
+    let chain_truth = p.truth == Truth::Chain;
+    let edge = match p.truth {
+        Truth::Sde(e) => e,
+        Truth::Chain => Edge::Wall,
+    };
+    let nc = cp.n_chain();
+    let mut crashed = 0usize;
     let g = cp.pomdp.discount;
     let ns = cp.pomdp.n_states();
     let mut b = vec![0.0; ns];
@@ -112,7 +180,8 @@ pub fn evaluate(
     let mut ret = Vec::with_capacity(runs);
     let (mut in_goal, mut declared) = (0usize, 0usize);
     let (mut dist, mut berr) = (0.0, 0.0);
-    let mut lit = 0usize;
+    let (mut lit, mut wall) = (0usize, 0usize);
+    let on_edge = |x: &[f64]| x.iter().any(|v| v.abs() >= 2.0);
     let inf_norm = |a: &[f64], b: &[f64]| {
         a.iter()
             .zip(b)
@@ -126,17 +195,26 @@ pub fn evaluate(
         for (i, xi) in x.iter_mut().enumerate() {
             let v = match &p.start {
                 Start::Gaussian { mean, std } => {
-                    mean[i] + std * r_start.sample::<f64, _>(StandardNormal)
+                    let mut v = mean[i] + std * r_start.sample::<f64, _>(StandardNormal);
+                    // On a cliff the start is the Gaussian truncated to the
+                    // box (as b₀ on the chain's states), not clamped onto it.
+                    while edge == Edge::Cliff && v.abs() >= 2.0 {
+                        v = mean[i] + std * r_start.sample::<f64, _>(StandardNormal);
+                    }
+                    v
                 }
                 Start::Uniform { lo, hi } => r_start.random_range(*lo..*hi),
             };
             *xi = v.clamp(-2.0, 2.0);
         }
         let mut z = 0usize;
-        if p.chain_truth {
+        if chain_truth {
             z = draw(&cp.pomdp.start, r_start.random::<f64>());
             x.copy_from_slice(cp.state(z));
         }
+        // Only the moves count: x₀ is clamped into the box (≈ 16 % of the
+        // 2-D starts lie on the edge x₁ = −2) before any plan acts.
+        let mut touched = false;
         b.copy_from_slice(&cp.pomdp.start);
         let (mut total, mut disc) = (0.0, 1.0);
         let mut seen_light = p.obs.light.contains(&x);
@@ -161,18 +239,33 @@ pub fn evaluate(
                 total += disc * if hit { 1000.0 } else { -1000.0 };
                 break;
             };
-            total += disc * cp.pomdp.reward[a][0];
-            if p.chain_truth {
+            // The chain truth pays the chain's reward (on a cliff its
+            // expected penalty); the SDE pays the control cost, and the
+            // penalty only if it falls.
+            total += disc
+                * if chain_truth {
+                    cp.pomdp.reward[a][z]
+                } else {
+                    -u.iter().map(|v| v * v).sum::<f64>() * h
+                };
+            if chain_truth {
                 let (cols, vals) = cp.pomdp.trans[a].row(z);
                 z = cols[draw(vals, r_dyn.random::<f64>())] as usize;
+                if z >= nc {
+                    // Fallen off (a cliff row's absorbing end).
+                    crashed += 1;
+                    touched = true;
+                    break;
+                }
                 x.copy_from_slice(cp.state(z));
+                touched |= on_edge(&x);
             }
-            for _ in 0..m * usize::from(!p.chain_truth) {
-                for i in 0..d {
-                    let v = x[i]
-                        + u[i] * de
-                        + p.sigma * de.sqrt() * r_dyn.sample::<f64, _>(StandardNormal);
-                    x[i] = v.clamp(-2.0, 2.0);
+            if !chain_truth {
+                touched |= sde_period(&mut x, u, p.sigma, de, m, edge, &mut r_dyn);
+                if touched && edge == Edge::Cliff {
+                    crashed += 1;
+                    total += disc * -1000.0;
+                    break;
                 }
             }
             seen_light |= p.obs.light.contains(&x);
@@ -197,6 +290,7 @@ pub fn evaluate(
             }
             disc *= g;
         }
+        wall += usize::from(touched);
         ret.push(total);
     }
     let n = runs as f64;
@@ -210,6 +304,9 @@ pub fn evaluate(
         declare_dist: dist / declared.max(1) as f64,
         belief_err: berr / declared.max(1) as f64,
         lit_frac: lit as f64 / declared.max(1) as f64,
+        wall_frac: wall as f64 / n,
+        crash_frac: crashed as f64 / n,
+        returns: ret,
     }
 }
 
@@ -223,7 +320,7 @@ pub fn value(
     dim: usize,
     runs: usize,
     seed: u64,
-    chain_truth: bool,
+    truth: Truth,
 ) -> Outcome {
     let (light, goal, start) = if dim == 1 {
         (
@@ -247,10 +344,48 @@ pub fn value(
         obs: &obs,
         goal: &goal,
         start,
-        chain_truth,
+        truth,
     };
     let horizon = beliefbus_pomdp::simulate::horizon(&cp.pomdp, 1e-2);
     evaluate(cp, policy, &p, runs, horizon, seed)
+}
+
+/// `steps` Euler–Maruyama steps of dx = u dt + σ dw of length `de`, each
+/// clamped to [−2, 2] for [`Edge::Wall`]; true if any step reached the
+/// edge (|x_i| ≥ 2 before the clamp). For [`Edge::Cliff`] a path between
+/// two steps inside also reaches it with the Brownian bridge's probability
+/// (module doc), and the period stops there (true: fallen).
+pub fn sde_period(
+    x: &mut [f64],
+    u: &[f64],
+    sigma: f64,
+    de: f64,
+    steps: usize,
+    edge: Edge,
+    rng: &mut impl rand::Rng,
+) -> bool {
+    let mut touched = false;
+    let s2 = sigma * sigma * de;
+    for _ in 0..steps {
+        for (xi, ui) in x.iter_mut().zip(u) {
+            let v = *xi + ui * de + sigma * de.sqrt() * rng.sample::<f64, _>(StandardNormal);
+            touched |= v.abs() >= 2.0;
+            if edge == Edge::Cliff && !touched {
+                let bridge = (-2.0 * (2.0 - *xi) * (2.0 - v) / s2).exp()
+                    + (-2.0 * (2.0 + *xi) * (2.0 + v) / s2).exp();
+                touched |= rng.random::<f64>() < bridge;
+            }
+            *xi = if edge == Edge::Wall {
+                v.clamp(-2.0, 2.0)
+            } else {
+                v
+            };
+        }
+        if touched && edge == Edge::Cliff {
+            return true;
+        }
+    }
+    touched
 }
 
 /// The index where the cumulative sum of `w` passes `u`·Σw.

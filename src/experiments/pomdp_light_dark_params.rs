@@ -17,6 +17,7 @@ pub const PARAMS: &[ParamDoc] = &[
         "150",
         "2-D chain size of the anytime curve",
     ),
+    p("states_1d", "20", "regular 1-D chain states on [-1.9, 1.9]"),
     p("solve_1d_s", "10", "solver time of the 1-D problem (s)"),
     p("noise", "0.1", "diffusion sigma of dx = u dt + sigma dw"),
     p(
@@ -63,6 +64,26 @@ pub const PARAMS: &[ParamDoc] = &[
         "solves",
         "1",
         "independent 2-D solves (chains from seed, seed+1, ...), summarised per size in rows 'replicates'",
+    ),
+    p(
+        "budget",
+        "fixed",
+        "2-D solver time per size: fixed (solve_s at every size) or per_state (solve_s * n / first n)",
+    ),
+    p(
+        "open",
+        "0",
+        "1: also run each 2-D policy with no walls at the box edge (continuous_open, wall_frac_open)",
+    ),
+    p(
+        "edge",
+        "wall",
+        "the 2-D box's edge: wall (the system stops there) or cliff (reaching it ends the episode with -1000), in the chain and the truth",
+    ),
+    p(
+        "trial_gap",
+        "0.5",
+        "2-D solver: each trial aims at this fraction of the gap at b0 (0: the precision, HSVI2's deep trials)",
     ),
     p(
         "kappa_drift",
@@ -117,4 +138,71 @@ pub fn cell_goal(
     };
     rep.param("goal_reward", if cell { "cell" } else { "state" });
     Ok(cell)
+}
+
+/// Every `--param` key must be one of [`PARAMS`].
+pub fn check_keys(args: &crate::experiments::ExperimentArgs) -> anyhow::Result<()> {
+    match args
+        .params
+        .iter()
+        .find(|(k, _)| !PARAMS.iter().any(|d| d.key == k.as_str()))
+    {
+        Some((k, _)) => anyhow::bail!("unknown --param '{k}'"),
+        None => Ok(()),
+    }
+}
+
+/// `--param budget=fixed|per_state`: the solver seconds of each size in
+/// `sizes`, `solve_s` at every size or `solve_s · n / sizes[0]` (the
+/// solver's work per backup grows with n, so a fixed budget buys the
+/// larger chains fewer backups).
+pub fn budgets(
+    args: &crate::experiments::ExperimentArgs,
+    rep: &mut crate::experiments::ExperimentReport,
+    sizes: &[usize],
+    solve_s: f64,
+) -> anyhow::Result<Vec<f64>> {
+    let raw = args
+        .params
+        .iter()
+        .rev()
+        .find(|(k, _)| k == "budget")
+        .map(|(_, v)| v.trim().to_string());
+    let per_state = match raw.as_deref() {
+        None | Some("fixed") => false,
+        Some("per_state") => true,
+        Some(v) => anyhow::bail!("--param budget: 'fixed' or 'per_state', not '{v}'"),
+    };
+    rep.param("budget", if per_state { "per_state" } else { "fixed" });
+    let first = sizes.first().copied().unwrap_or(1).max(1) as f64;
+    Ok(sizes
+        .iter()
+        .map(|&n| {
+            if per_state {
+                solve_s * n as f64 / first
+            } else {
+                solve_s
+            }
+        })
+        .collect())
+}
+
+/// `--param edge=wall|cliff`: true for `cliff`.
+pub fn cliff(
+    args: &crate::experiments::ExperimentArgs,
+    rep: &mut crate::experiments::ExperimentReport,
+) -> anyhow::Result<bool> {
+    let raw = args
+        .params
+        .iter()
+        .rev()
+        .find(|(k, _)| k == "edge")
+        .map(|(_, v)| v.trim().to_string());
+    let cliff = match raw.as_deref() {
+        None | Some("wall") => false,
+        Some("cliff") => true,
+        Some(v) => anyhow::bail!("--param edge: 'wall' or 'cliff', not '{v}'"),
+    };
+    rep.param("edge", if cliff { "cliff" } else { "wall" });
+    Ok(cliff)
 }

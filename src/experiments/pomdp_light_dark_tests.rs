@@ -11,6 +11,9 @@ fn setting() -> Setting {
         kappa_drift: 1.0,
         rows: Rows::Kernel,
         cell_goal: false,
+        cliff: false,
+        trial_gap: 0.5,
+        states_1d: 20,
     }
 }
 
@@ -136,7 +139,7 @@ fn declaring_at_once_in_continuous_space_earns_the_gaussian_goal_probability() {
             mean: vec![1.5, -1.5],
             std,
         },
-        chain_truth: false,
+        truth: WALLS,
     };
     let runs = 4000;
     let out = continuous::evaluate(&cp, &constant_policy(&cp, 0), &p, runs, 50, 7);
@@ -170,7 +173,7 @@ fn never_declaring_costs_exactly_the_discounted_control_cost() {
         obs: &obs,
         goal: &goal,
         start: continuous::Start::Uniform { lo: -2.0, hi: 2.0 },
-        chain_truth: false,
+        truth: WALLS,
     };
     let horizon = 37;
     let out = continuous::evaluate(&cp, &constant_policy(&cp, a), &p, 20, horizon, 1);
@@ -197,7 +200,7 @@ fn one_d_policy_on_a_tracked_belief_overshoots_the_goal_as_the_live_sde_plant_do
     // 0.2 cell, and dead reckoning from the light overshoots ±0.1. The
     // evaluator must agree: 0/69 puts the goal fraction below 4.3 % at
     // 95 %, and 400 runs here have s.e. ≤ 1.5 %.
-    let out = continuous_value(&cp, &sol.policy, &s, 1, 400, 5, false);
+    let out = continuous_value(&cp, &sol.policy, &s, 1, 400, 5, WALLS);
     assert!(out.goal_frac < 0.1, "{out:?}");
     // The agent still localises and declares (it does not wander off):
     // nearly every episode ends with the terminal action.
@@ -210,9 +213,192 @@ fn one_d_policy_on_a_tracked_belief_overshoots_the_goal_as_the_live_sde_plant_do
     // The same filter and lookup with the chain as the truth (the live
     // `chain` plant: ≥ 98 % of episodes in the goal): the loss above is
     // the system's, not the evaluator's.
-    let on_chain = continuous_value(&cp, &sol.policy, &s, 1, 400, 5, true);
+    let on_chain = continuous_value(&cp, &sol.policy, &s, 1, 400, 5, Truth::Chain);
     assert!(
         on_chain.goal_frac >= 0.9 && on_chain.mean > 0.0,
         "{on_chain:?}"
     );
+}
+
+#[test]
+fn sde_period_without_walls_has_the_exact_gaussian_moments_and_with_walls_stays_in_the_box() {
+    // Free: x_T = x₀ + u T + σ √T ξ exactly, whatever the step count.
+    let (sigma, de, steps) = (0.3, 0.05, 8);
+    let t = de * steps as f64;
+    let (x0, u) = ([1.9, -0.5], [1.0, -0.25]);
+    let runs = 20_000;
+    let mut rng = crate::rng::stream(9, 0);
+    let (mut sum, mut sq) = ([0.0; 2], [0.0; 2]);
+    let mut left = 0;
+    for _ in 0..runs {
+        let mut x = x0;
+        let touched = continuous::sde_period(&mut x, &u, sigma, de, steps, Edge::Open, &mut rng);
+        // Free, the last step's value is x itself: outside means touched.
+        assert!(touched || x.iter().all(|v| v.abs() < 2.0), "{x:?}");
+        left += usize::from(touched);
+        for i in 0..2 {
+            sum[i] += x[i];
+            sq[i] += x[i] * x[i];
+        }
+    }
+    let var = sigma * sigma * t;
+    for i in 0..2 {
+        let mean = sum[i] / runs as f64;
+        let v = sq[i] / runs as f64 - mean * mean;
+        let exact = x0[i] + u[i] * t;
+        assert!(
+            (mean - exact).abs() < 4.0 * (var / runs as f64).sqrt(),
+            "axis {i}: mean {mean} vs {exact}"
+        );
+        // s.e. of a normal sample variance: var √(2/n).
+        assert!((v - var).abs() < 4.0 * var * (2.0 / runs as f64).sqrt());
+    }
+    // x₁ starts 0.1 from the edge and drifts out at 1/s for 0.4 s: it
+    // ends outside with probability Φ(0.3/0.19) ≈ 0.94, and leaves at
+    // some step at least as often.
+    assert!(left as f64 > 0.9 * runs as f64, "{left}");
+    // Walls: every coordinate ends inside, and the touch is reported.
+    let mut x = x0;
+    assert!(continuous::sde_period(
+        &mut x,
+        &u,
+        sigma,
+        de,
+        steps,
+        Edge::Wall,
+        &mut rng
+    ));
+    assert!(x.iter().all(|v| v.abs() <= 2.0), "{x:?}");
+    // Far from the edge with u = 0 and σ√T = 0.19 nothing comes within 1.
+    let mut x = [0.0, 0.5];
+    assert!(!continuous::sde_period(
+        &mut x,
+        &[0.0, 0.0],
+        sigma,
+        de,
+        steps,
+        Edge::Wall,
+        &mut rng
+    ));
+}
+
+#[test]
+fn wall_fraction_counts_the_episodes_that_reach_the_edge_and_open_truth_leaves_the_box() {
+    let s = setting();
+    let cp = two_d_75(&s);
+    let a = cp.offset + 2;
+    assert_eq!(cp.control(a), Some(&[1.0, -1.0][..]));
+    let (goal, light) = (goal_2d(), light_2d());
+    let obs = LightDarkObs { light, eps: s.eps };
+    let problem = |truth| continuous::Problem {
+        sigma: s.sigma,
+        obs: &obs,
+        goal: &goal,
+        start: continuous::Start::Uniform { lo: -1.0, hi: 1.0 },
+        truth,
+    };
+    // From |x| < 1 at (1, −1) per second the edge is reached within 3 s
+    // (σ = 0.1): 40 periods are far longer.
+    let h = cp.period;
+    let horizon = (3.0 / h).ceil() as usize + 40;
+    for edge in [Edge::Wall, Edge::Open] {
+        let out = continuous::evaluate(
+            &cp,
+            &constant_policy(&cp, a),
+            &problem(Truth::Sde(edge)),
+            50,
+            horizon,
+            3,
+        );
+        assert_eq!(out.wall_frac, 1.0, "{edge:?}: {out:?}");
+    }
+    // Standing still for 2 periods (σ √(2h) ≤ 0.1) never comes within 1.
+    let out = continuous::evaluate(
+        &cp,
+        &constant_policy(&cp, cp.offset),
+        &problem(WALLS),
+        50,
+        2,
+        3,
+    );
+    assert_eq!(cp.control(cp.offset), Some(&[0.0, 0.0][..]));
+    assert_eq!(out.wall_frac, 0.0, "{out:?}");
+}
+
+#[test]
+fn paired_difference_is_the_mean_and_standard_error_of_the_episode_differences() {
+    let mk = |r: Vec<f64>| continuous::Outcome {
+        mean: 0.0,
+        std_err: 0.0,
+        goal_frac: 0.0,
+        declared_frac: 0.0,
+        declare_dist: 0.0,
+        belief_err: 0.0,
+        lit_frac: 0.0,
+        wall_frac: 0.0,
+        crash_frac: 0.0,
+        returns: r,
+    };
+    let a = mk(vec![5.0, 1.0, 10.0, 4.0]);
+    let b = mk(vec![4.0, 1.0, 7.0, 4.0]);
+    // Differences 1, 0, 3, 0: mean 1, sample variance (0 + 1 + 4 + 1)/3 = 2.
+    let (d, se) = a.paired_diff(&b).expect("same length");
+    assert_eq!(d, 1.0);
+    assert!((se - (2.0f64 / 4.0).sqrt()).abs() < 1e-15);
+    assert_eq!(a.paired_diff(&mk(vec![1.0; 3])), None);
+}
+
+#[test]
+fn falling_off_the_cliff_in_one_period_has_the_chain_rows_first_passage_probability() {
+    // The truth's bridged Euler steps and the chain's closed form
+    // (chain_pomdp::cliff) must agree on P(reach the edge within h).
+    let (sigma, h) = (0.1, 0.5);
+    let de = h / continuous::EULER_STEPS as f64;
+    let runs = 40_000;
+    let mut rng = crate::rng::stream(21, 0);
+    for (x0, u) in [
+        ([1.9, 0.0], [0.0, 0.0]),
+        ([1.8, -1.85], [0.2, 0.1]),
+        ([0.0, 1.95], [0.5, -0.2]),
+    ] {
+        let mut fell = 0usize;
+        for _ in 0..runs {
+            let mut x = x0;
+            fell += usize::from(continuous::sde_period(
+                &mut x,
+                &u,
+                sigma,
+                de,
+                continuous::EULER_STEPS,
+                Edge::Cliff,
+                &mut rng,
+            ));
+        }
+        let p = cliff::leave_prob(&x0, &u, &[sigma; 2], h, &[-2.0; 2], &[2.0; 2]);
+        let mc = fell as f64 / runs as f64;
+        let se = (p * (1.0 - p) / runs as f64).sqrt();
+        assert!((mc - p).abs() < 4.0 * se + 1e-4, "x0 {x0:?}: {mc} vs {p}");
+    }
+}
+
+#[test]
+fn one_d_grid_is_regular_on_its_interval_with_a_uniform_start() {
+    for n in [20, 40] {
+        let s = Setting {
+            states_1d: n,
+            ..setting()
+        };
+        let cp = one_d(&s).expect("1-D POMDP");
+        assert_eq!(cp.n_chain(), n);
+        let step = 3.8 / (n - 1) as f64;
+        for i in 0..n {
+            assert!((cp.state(i)[0] - (-1.9 + step * i as f64)).abs() < 1e-12);
+            assert!((cp.pomdp.start[i] - 1.0 / n as f64).abs() < 1e-15);
+        }
+    }
+    let one = Setting {
+        states_1d: 1,
+        ..setting()
+    };
+    assert!(one_d(&one).is_err());
 }

@@ -35,11 +35,13 @@
 //! [`rows_moment`] (the alternative [`Rows::Moment`]: one row per decision
 //! period with the SDE's mean over h exactly and its covariance as closely
 //! as the states allow; [`lp`] its linear programs), [`warm`]
-//! (carrying a solution to a refined chain). Alg. 4.4's growth — the chain
+//! (carrying a solution to a refined chain), [`cliff`] (the box's edge
+//! as a cliff that ends the episode instead of a wall). Alg. 4.4's growth — the chain
 //! refined incrementally (Alg. 2.3), U and O grown to ⌊c ln n⌋ points
 //! ([`log_count`]) — is the caller's loop; each refined POMDP is rebuilt
 //! here and solved from the carried solution.
 
+pub mod cliff;
 pub mod lp;
 pub mod rows;
 pub mod rows_moment;
