@@ -383,12 +383,12 @@ mod tests {
 
     /// A version drawn around a ship belief moving at v₁ = 6 (beyond
     /// v_max = 4): every state is a draw of N(c, (inflate σ)²) around the
-    /// moved centre, none a uniform fallback — the sample mean and std of
-    /// each axis agree with it within 5 standard errors (truncation at k = 2.25
-    /// std moves a mean by 0.004 s), and no state is farther than 6 s
-    /// from c on any axis (a uniform draw on S would be, with probability
-    /// > 0.5). Before, the states sat in a slab v₁ ∈ [~3.5, 4] with the
-    /// rest drawn uniformly.
+    /// moved centre, none a uniform fallback — the sample mean of each axis
+    /// agrees with it within 5 standard errors (truncation at k = 2.25 std
+    /// moves a mean by at most 0.032 s), its std within 10 %, and no state
+    /// is farther than 6 s from c on any axis (a uniform draw on S is, with
+    /// probability above one half). Drawn around the mean itself, the
+    /// states would sit in a slab v₁ ∈ [~3.5, 4] and the rest be uniform.
     #[test]
     fn a_version_around_a_belief_beyond_a_face_of_s_is_a_full_cloud_inside_it() {
         use crate::model::ship::{Ship, ShipParams};
