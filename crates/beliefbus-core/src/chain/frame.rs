@@ -105,6 +105,73 @@ pub fn sampler_around<M: SdeModel + ?Sized>(
     Sampler::around(&g, p.inflate, p.uniform_fraction)
 }
 
+/// Sampling std of a version's cloud per axis: `inflate` × the belief's
+/// std, floored as in [`sampler_around`].
+fn cloud_std(bounds: &Bounds, belief: &Gaussian, p: &FrameBuild) -> [f64; MAX_STATE] {
+    let mut s = [0.0; MAX_STATE];
+    for i in 0..belief.dim {
+        let floor = p.min_std_fraction * (bounds.hi()[i] - bounds.lo()[i]);
+        s[i] = p.inflate * belief.cov_at(i, i).max(0.0).sqrt().max(floor);
+    }
+    s
+}
+
+/// How many sampling std of the cloud must fit inside S on each side of
+/// its centre (≈ 1.2 % of a normal axis beyond each face).
+pub const CLOUD_FIT: f64 = 2.25;
+
+/// The centre of a version's cloud: the belief mean m moved into S just
+/// far enough that `CLOUD_FIT` sampling std s_i fit on each side of it,
+///
+/// ```text
+/// c_i = clamp(m_i, lo_i + k s_i, hi_i − k s_i)   ((lo_i + hi_i)/2 when the interval is empty)
+/// (c_a, c_b) ← (c_a, c_b) · min(1, max(R − k max(s_a, s_b), 0) / ‖(c_a, c_b)‖)   (a disc of radius R on axes a, b)
+/// ```
+///
+/// with k = `CLOUD_FIT`. In frame coordinates a state z stands for z + F,
+/// so where the cloud sits is free — the filter sets F at the install to
+/// the belief mean minus the installed mass's mean, and F moves at
+/// f(x̂, u) − f(x̂ − F, u₀) + w, exact while f(z + F, u) − f(z, u₀) does not
+/// depend on z (the ship inside its disc: an offset in velocity moves the
+/// positions by exactly that offset) — whereas S restricts every draw
+/// ([`Sampler::sample`] rejects draws outside it, then falls back to
+/// uniform ones). A cloud centred on a belief near or beyond a face of S
+/// (the ship's velocities past v_max, which the controlled ship reaches a
+/// third of the time at 1 kHz) is cut to a slab on that face and padded
+/// with uniform states: the install then puts the belief on one or two
+/// states, and the next versions, drawn around that collapsed belief, keep
+/// it there (measured in the flagship loop: the belief's effective support
+/// 1.0 state for seconds, position errors of 2–12).
+///
+/// Positions move only near the disc's edge (at most by k·s); the filter
+/// corrects the observation for the frame's offset to first order at the
+/// mass mean (`LiveChainFilter::update`).
+pub fn cloud_centre(bounds: &Bounds, belief: &Gaussian, p: &FrameBuild) -> [f64; MAX_STATE] {
+    let d = belief.dim;
+    let s = cloud_std(bounds, belief, p);
+    let mut c = belief.mean;
+    for i in 0..d {
+        let (lo, hi) = (bounds.lo()[i], bounds.hi()[i]);
+        let (a, b) = (lo + CLOUD_FIT * s[i], hi - CLOUD_FIT * s[i]);
+        c[i] = if a <= b {
+            c[i].clamp(a, b)
+        } else {
+            0.5 * (lo + hi)
+        };
+    }
+    if let Some(disc) = bounds.disc() {
+        let (i, j) = disc.axes;
+        let room = (disc.radius - CLOUD_FIT * s[i].max(s[j])).max(0.0);
+        let r = c[i].hypot(c[j]);
+        if r > room {
+            let f = if r > 0.0 { room / r } else { 0.0 };
+            c[i] *= f;
+            c[j] *= f;
+        }
+    }
+    c
+}
+
 /// A moving-frame version (`refine.moving_frame`): a batch chain (Alg. 2.1)
 /// of `n` states drawn around `belief` ([`sampler_around`]), built for
 /// f(x, u₀) − w with w the mean drift of its states under the reference
@@ -146,7 +213,10 @@ impl FrameJob {
     ) -> Result<Self, super::ChainError> {
         let d = belief.dim;
         let nu = model.dims().control;
-        let sampler = sampler_around(model, belief, &belief.mean[..d], p);
+        // Around the belief moved into S (see `cloud_centre`): the frame
+        // F carries the offset.
+        let centre = cloud_centre(model.bounds(), belief, p);
+        let sampler = sampler_around(model, belief, &centre[..d], p);
         let mut pts = vec![0.0; n * d];
         for x in pts.chunks_exact_mut(d) {
             match &sampler {
@@ -258,6 +328,90 @@ mod tests {
             framed.drift(x, &[], &mut g);
             assert_eq!([g[0], g[1]], [f[0] - 0.5, f[1] + 1.5]);
             assert_eq!([f_soa[k], f_soa[3 + k]], g);
+        }
+    }
+
+    fn cloud_params() -> FrameBuild {
+        FrameBuild {
+            inflate: 2.0,
+            uniform_fraction: 0.0,
+            min_std_fraction: 0.01,
+            chain: ChainConfig::moment_matched(4),
+            dt: 0.01,
+        }
+    }
+
+    /// The ship's S: the disc of radius 9 on the positions, |v_i| ≤ 4.
+    fn ship_bounds() -> Bounds {
+        Bounds::new_box(&[-9.0, -9.0, -4.0, -4.0], &[9.0, 9.0, 4.0, 4.0])
+            .unwrap()
+            .with_disc((0, 1), 9.0)
+            .unwrap()
+    }
+
+    #[test]
+    fn the_cloud_centre_is_the_belief_mean_moved_just_inside_s() {
+        let b = ship_bounds();
+        let p = cloud_params();
+        let k = CLOUD_FIT;
+        // Well inside: unchanged.
+        let g = Gaussian::diagonal(&[1.0, -2.0, 0.5, -1.0], &[0.2, 0.2, 0.3, 0.3]);
+        let c = cloud_centre(&b, &g, &p);
+        assert_eq!(&c[..4], &g.mean[..4]);
+        // v₁ = 6 and v₂ = −4.5 beyond their faces, v std 0.3 → s = 0.6:
+        // the centre sits k·s inside each face; the positions stay.
+        let g = Gaussian::diagonal(&[1.0, -2.0, 6.0, -4.5], &[0.2, 0.2, 0.3, 0.3]);
+        let c = cloud_centre(&b, &g, &p);
+        assert_eq!(&c[..2], &g.mean[..2]);
+        assert!((c[2] - (4.0 - k * 0.6)).abs() < 1e-12, "{}", c[2]);
+        assert!((c[3] - (-4.0 + k * 0.6)).abs() < 1e-12, "{}", c[3]);
+        // An axis too narrow for ±k·s: its midpoint.
+        let g = Gaussian::diagonal(&[1.0, -2.0, 3.0, 0.0], &[0.2, 0.2, 2.0, 0.3]);
+        assert_eq!(cloud_centre(&b, &g, &p)[2], 0.0);
+        // Near the wall: radially inward to R − k·max(s₁, s₂), direction kept.
+        let g = Gaussian::diagonal(&[6.0, 6.0, 0.0, 0.0], &[0.2, 0.25, 0.3, 0.3]);
+        let c = cloud_centre(&b, &g, &p);
+        let room = 9.0 - k * 0.5;
+        assert!((c[0].hypot(c[1]) - room).abs() < 1e-12);
+        assert!((c[0] - c[1]).abs() < 1e-12);
+        // The std floor counts: a collapsed velocity std (1e-4) uses
+        // min_std_fraction · 8 = 0.08, s = 0.16.
+        let g = Gaussian::diagonal(&[0.0, 0.0, 9.0, 0.0], &[0.2, 0.2, 1e-4, 0.3]);
+        let c = cloud_centre(&b, &g, &p);
+        assert!((c[2] - (4.0 - k * 0.16)).abs() < 1e-12, "{}", c[2]);
+    }
+
+    /// A version drawn around a ship belief moving at v₁ = 6 (beyond
+    /// v_max = 4): every state is a draw of N(c, (inflate σ)²) around the
+    /// moved centre, none a uniform fallback — the sample mean of each axis
+    /// agrees with it within 5 standard errors (truncation at k = 2.25 std
+    /// moves a mean by at most 0.032 s), its std within 10 %, and no state
+    /// is farther than 6 s from c on any axis (a uniform draw on S is, with
+    /// probability above one half). Drawn around the mean itself, the
+    /// states would sit in a slab v₁ ∈ [~3.5, 4] and the rest be uniform.
+    #[test]
+    fn a_version_around_a_belief_beyond_a_face_of_s_is_a_full_cloud_inside_it() {
+        use crate::model::ship::{Ship, ShipParams};
+        let ship = Ship::new(ShipParams::paper(0.001)).unwrap();
+        let p = cloud_params();
+        let g = Gaussian::diagonal(&[2.0, 1.0, 6.0, -0.5], &[0.2, 0.2, 0.3, 0.3]);
+        let c = cloud_centre(ship.bounds(), &g, &p);
+        let n = 2000;
+        let (chain, _) = build_framed(&ship, &g, n, &p, &mut crate::rng::stream(5, 1)).unwrap();
+        assert_eq!(chain.len(), n);
+        for a in 0..4 {
+            let s = p.inflate * g.cov_at(a, a).sqrt();
+            let xs: Vec<f64> = (0..n).map(|i| chain.state(i)[a]).collect();
+            let mean = xs.iter().sum::<f64>() / n as f64;
+            let sd = (xs.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n as f64).sqrt();
+            let se = s / (n as f64).sqrt();
+            assert!(
+                (mean - c[a]).abs() < 5.0 * se,
+                "axis {a}: mean {mean} vs {}",
+                c[a]
+            );
+            assert!((sd / s - 1.0).abs() < 0.1, "axis {a}: sd {sd} vs {s}");
+            assert!(xs.iter().all(|v| (v - c[a]).abs() < 6.0 * s), "axis {a}");
         }
     }
 

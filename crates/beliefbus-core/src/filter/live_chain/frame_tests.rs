@@ -17,14 +17,16 @@ use crate::model::{simulate_observation, Bounds, Dims, SdeJacobians};
 use nalgebra::DMatrix;
 use std::time::Duration;
 
-/// Bounds wide enough that the belief stays inside them over the runs. A
-/// version drawn around a belief at or beyond a bound is rejection-sampled
-/// into the bounds (`Sampler::sample`), so its states sit on one side of
-/// the belief and the chain has a wall there in frame coordinates: with
-/// p ∈ [−20, 20] the belief crossed p = 20 at t ≈ 5.6 s and both the moving
-/// frame (gap 5.7 sd, sd 0.1–0.3 of Kalman's) and the fixed chain (30 sd)
-/// broke down. Not tested here (the moving frame's open issue).
-fn cv_model(qp: f64) -> LinearSde {
+/// The constant-velocity model with S = [−p_half, p_half] × [−v_half,
+/// v_half]. The runs below keep the belief inside the wide bounds
+/// (40, 8); the narrow ones (8, 1.5) have it start outside them (p = −10,
+/// v = 2) and cross them again: a version's cloud is then drawn around
+/// the belief mean moved inside S ([`crate::chain::frame::cloud_centre`])
+/// and the frame carries the offset. (Drawn around the mean itself, the
+/// states were rejection-sampled into a slab on the face and the filter
+/// broke down: with p ∈ [−20, 20] the belief crossed p = 20 at t ≈ 5.6 s,
+/// gap 5.7 sd.)
+fn cv_model(qp: f64, half: [f64; 2]) -> LinearSde {
     LinearSde::new(
         "cv",
         DMatrix::from_row_slice(2, 2, &[0.0, 1.0, 0.0, 0.0]),
@@ -32,9 +34,12 @@ fn cv_model(qp: f64) -> LinearSde {
         DMatrix::from_row_slice(2, 2, &[qp, 0.0, 0.0, 0.5]),
         DMatrix::from_row_slice(1, 2, &[1.0, 0.0]),
         vec![0.2],
-        Bounds::new_box(&[-40.0, -8.0], &[40.0, 8.0]).unwrap(),
+        Bounds::new_box(&[-half[0], -half[1]], &[half[0], half[1]]).unwrap(),
     )
 }
+
+/// Half widths of S in the runs that keep the belief inside it.
+const WIDE: [f64; 2] = [40.0, 8.0];
 
 /// The constant-velocity model under a constant pull −g on v (gravity):
 /// a hover needs the reference control u₀ = g.
@@ -125,6 +130,8 @@ struct Case {
     /// built for (u = u₀ ± amp); `tell`: whether the filter is given u₀.
     g: f64,
     tell: bool,
+    /// Half widths of S (p, v).
+    half: [f64; 2],
 }
 
 /// Run `case` from a moving start (v = 2), seeded.
@@ -143,6 +150,7 @@ fn run(case: Case, seed: u64) -> Gap {
         hold,
         g: pull,
         tell,
+        half,
     } = case;
     // The offset from u₀ (its sign, also of ±0, orients the bias).
     let du = |k: usize| {
@@ -153,7 +161,7 @@ fn run(case: Case, seed: u64) -> Gap {
         }
     };
     let u = |k: usize| pull + du(k);
-    let lin = cv_model(qp);
+    let lin = cv_model(qp, half);
     let m = Pulled {
         inner: lin.clone(),
         g: pull,
@@ -291,6 +299,7 @@ fn moving_frame_tracks_the_kalman_filter_on_a_constant_velocity_model() {
         hold: 20,
         g: 0.0,
         tell: true,
+        half: WIDE,
     };
     let slow = Case {
         dt: 0.2,
@@ -355,6 +364,7 @@ fn versions_built_around_a_hover_control_track_the_kalman_filter() {
         hold: 20,
         g: 9.81,
         tell: true,
+        half: WIDE,
     };
     let framed = run(hover, 7);
     let fixed = run(
@@ -399,4 +409,36 @@ fn versions_built_around_a_hover_control_track_the_kalman_filter() {
         "{fixed:?} vs {fixed0:?}"
     );
     assert!(untold.mean > 3.0 * fixed.mean, "{untold:?} vs {fixed:?}");
+}
+
+/// The moving frame against Kalman when S is narrower than the flight:
+/// p ∈ [−8, 8] and v ∈ [−1.5, 1.5], the belief starting outside both
+/// (p = −10, v = 2) and leaving v's interval again under the ±2 controls.
+/// Every version is drawn inside S around the moved centre and the frame
+/// carries the offset, so the filter meets the bounds of the wide-S runs
+/// (500 states). Measured before the centre was moved (states rejection-
+/// sampled into a slab on the face): see `cv_model`.
+#[test]
+fn moving_frame_tracks_the_kalman_filter_when_the_belief_leaves_s() {
+    let narrow = Case {
+        moving: true,
+        qp: 0.1,
+        dt: 0.05,
+        publish: 4,
+        n: 500,
+        steps: 120,
+        amp: 2.0,
+        hold: 20,
+        g: 0.0,
+        tell: true,
+        half: [8.0, 1.5],
+    };
+    for seed in [7, 8] {
+        let gap = run(narrow, seed);
+        eprintln!("narrow S, seed {seed}: {gap:?}");
+        assert!(gap.mean < GAP_500, "{gap:?}");
+        assert!(gap.max < MAX_GAP, "{gap:?}");
+        assert!(gap.u_bias < U_BIAS, "{gap:?}");
+        assert!(gap.log_sd < LOG_SD, "{gap:?}");
+    }
 }
