@@ -42,6 +42,26 @@ pub fn make_filter(
     })
 }
 
+/// `interval_prior`: whether the particle filters draw the noise of the
+/// whole interval since their last step with returns from their proposal
+/// ([`crate::slam::SlamFilter::set_interval_prior`]).
+pub fn parse_interval_prior(ps: &Params) -> Result<bool, LocalizationError> {
+    match ps.raw("interval_prior").unwrap_or(INTERVAL_PRIOR_DEFAULT) {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        v => Err(LocalizationError::Param {
+            key: "interval_prior".into(),
+            msg: format!("'{v}': need 'on' or 'off'"),
+        }),
+    }
+}
+
+/// The default of `interval_prior` in `slam` and `slam-victoria-park`.
+pub const INTERVAL_PRIOR_DEFAULT: &str = "on";
+
+/// The documentation of `interval_prior`, shared by both experiments.
+pub const INTERVAL_PRIOR_DOC: &str = "'on': between steps with returns the particle filters move each particle by the mean model and accumulate its noise (linearised, as EKF-SLAM predicts), and the next step with returns draws the whole interval's noise from its proposal and gates with it (slam::step_setup::StepPrior); 'off': every step's noise drawn from the motion model at once";
+
 /// The resample-move settings from the parameters (`None`: off).
 pub fn parse_move(ps: &Params) -> Result<Option<MoveConfig>, LocalizationError> {
     match ps.raw("move").unwrap_or("off") {

@@ -49,6 +49,12 @@ macro_rules! particle_set_diagnostics {
             self.shared = on;
         }
 
+        fn set_interval_prior(&mut self, on: bool) -> bool {
+            self.set.deferred = on;
+            self.set.acc.fill(nalgebra::Matrix3::zeros());
+            true
+        }
+
         fn set_existence(
             &mut self,
             cfg: Option<$crate::slam::existence::ExistenceConfig>,
@@ -242,6 +248,16 @@ pub trait SlamFilter {
     /// Particle filters: associate each return once for the whole set
     /// ([`shared_assoc`]) instead of once per particle; from the next reset.
     fn set_shared_association(&mut self, _on: bool) {}
+    /// Particle filters: on steps without returns move each particle by
+    /// the mean model and accumulate its noise (linearised, as EKF-SLAM's
+    /// prediction), so that the next step with returns draws the whole
+    /// interval's noise from its proposal and associates with the whole
+    /// interval's pose uncertainty ([`particles::SlamParticles::predict_only`],
+    /// [`step_setup::StepPrior`]). Whether the filter has the setting
+    /// (`false`: EKF-SLAM, whose prediction already does this).
+    fn set_interval_prior(&mut self, _on: bool) -> bool {
+        false
+    }
     /// Associate a scan's returns jointly, one landmark per return at most
     /// ([`scan_assoc`]), instead of each return on its own.
     fn set_exclusion(&mut self, _e: scan_assoc::Exclusion) {}

@@ -12,10 +12,10 @@ use super::scan_assoc::ScanAssoc;
 use super::shared_assoc::shared_offers;
 use super::{SlamModel, SlamStats};
 use crate::error::LocalizationError;
-use crate::geometry::{Point, Pose};
+use crate::geometry::{frame_rotation, Point, Pose};
 use crate::vehicle::{Control, StepNoise, Ute};
 use beliefbus_core::rng::SimRng;
-use nalgebra::{Matrix2, Matrix3};
+use nalgebra::{Matrix2, Matrix3, Vector3};
 
 /// The step's constants.
 pub struct StepSetup {
@@ -36,6 +36,73 @@ pub struct StepSetup {
     /// −½ log det Σ₁: the motion density's normaliser, which the linear
     /// map's weight keeps and a motion-model proposal cancels.
     pub motion_norm: f64,
+}
+
+/// One particle's prior for its pose at this step: N(f, Σ) with
+/// Σ = F C Fᵀ + Σ₁(β), C the noise accumulated since its last step with
+/// returns ([`SlamParticles::predict_only`]); Σ = Σ₁(β) when C = 0.
+#[derive(Clone, Copy, Debug)]
+pub struct StepPrior {
+    /// The mean prediction f(x, u).
+    pub f: Pose,
+    /// Σ (world frame).
+    pub cov: Matrix3<f64>,
+    /// Σ⁻¹.
+    pub prec: Matrix3<f64>,
+    /// −½ log det Σ: the prior density's normaliser.
+    pub norm: f64,
+    /// A factor of Σ for draws; `None`: the step's own T(β) C₀.
+    factor: Option<Matrix3<f64>>,
+    beta: f64,
+    chol0: Matrix3<f64>,
+}
+
+impl StepPrior {
+    /// A draw f + Σ^{1/2} ξ.
+    pub fn draw(&self, xi: &Vector3<f64>) -> Pose {
+        match &self.factor {
+            Some(c) => self.f + c * xi,
+            None => self.f + frame_rotation(self.beta) * (self.chol0 * xi),
+        }
+    }
+}
+
+impl StepSetup {
+    /// The prior of a particle at pose `x` with accumulated noise `acc`.
+    /// With `acc` = 0 it is the one step's N(f, Σ₁), computed exactly as
+    /// before the accumulation existed (same draws, same rounding).
+    pub fn prior(&self, x: &Pose, acc: &Matrix3<f64>, u: Control) -> StepPrior {
+        let f = self.ute.predict_mean(x, u);
+        let t = frame_rotation(x[2]);
+        let step = StepPrior {
+            f,
+            cov: t * self.s0 * t.transpose(),
+            prec: self.noise.precision(x[2]),
+            norm: self.motion_norm,
+            factor: None,
+            beta: x[2],
+            chol0: self.noise.chol,
+        };
+        if *acc == Matrix3::zeros() {
+            return step;
+        }
+        let fx = super::ekf::motion_jacobian(&self.ute, x[2], u);
+        let cov = fx * acc * fx.transpose() + step.cov;
+        let cov = 0.5 * (cov + cov.transpose());
+        match cov.cholesky() {
+            Some(ch) => {
+                let l = ch.l();
+                StepPrior {
+                    cov,
+                    prec: ch.inverse(),
+                    norm: -(0..3).map(|i| l[(i, i)].ln()).sum::<f64>(),
+                    factor: Some(l),
+                    ..step
+                }
+            }
+            None => step,
+        }
+    }
 }
 
 /// How a step goes on. Returned by value once per step: boxing the large
