@@ -115,6 +115,8 @@ pub mod fastslam;
 pub mod implicit;
 pub mod implicit_rb;
 pub mod implicit_refine;
+#[cfg(test)]
+mod interval_prior_tests;
 pub mod joint;
 pub mod map;
 pub mod particles;
