@@ -480,7 +480,10 @@ pub fn run(
     rep.param("runs", runs);
     rep.param("move", super::slam_run::move_name(s.path_move));
     rep.param("existence", super::slam_run::existence_name(s.existence));
-    rep.param("interval_prior", if s.interval_prior { "on" } else { "off" });
+    rep.param(
+        "interval_prior",
+        if s.interval_prior { "on" } else { "off" },
+    );
     rep.param("seed", seed);
     rep.param("data_dir", s.data_dir.display().to_string());
     rep.param("start_time_s", s.carpark.start_time);

@@ -271,8 +271,18 @@ fn check_interval_weights<F: SlamFilter>(
             5.0 * se
         );
     };
-    check("A / new", ga - gn, ea - en, (sa * sa + sn * sn + se_a * se_a).sqrt());
-    check("C / new", gc - gn, ec - en, (sc * sc + sn * sn + se_c * se_c).sqrt());
+    check(
+        "A / new",
+        ga - gn,
+        ea - en,
+        (sa * sa + sn * sn + se_a * se_a).sqrt(),
+    );
+    check(
+        "C / new",
+        gc - gn,
+        ec - en,
+        (sc * sc + sn * sn + se_c * se_c).sqrt(),
+    );
     // Power: the one-step prior's predictive likelihood is far from the
     // interval's, so a filter still using one step's noise would fail.
     let (ute, noise) = model.step_noise(U, DT).unwrap();

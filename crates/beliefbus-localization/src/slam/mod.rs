@@ -18,7 +18,9 @@
 //!
 //! Every filter associates each return by the one maximum-likelihood rule
 //! with the same gates ([`assoc`]), predicts with the same kinematics (E10)
-//! and noise Σ₁ = T(β) Σ₀(u) T(β)ᵀ every odometry step, and weighs returns
+//! and noise Σ₁ = T(β) Σ₀(u) T(β)ᵀ every odometry step (the particle
+//! filters optionally deferring the noise of steps without returns to the
+//! next step with returns, [`step_setup::StepPrior`]), and weighs returns
 //! with the same Σ₂. A return associated with no landmark starts one; the
 //! flat prior on its position is taken uniform over the laser's forward
 //! half circle (area A = π r_max²/2), which fixes the weight of a new
