@@ -187,6 +187,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p("existence_confirm", "3", "evidence at which a landmark is kept for good"),
     p("existence_margin", "1", "a landmark counts as in view only this far (m) inside the field of view's edges"),
     p("move", "off", "'window': after each resampling, Metropolis-Hastings moves of every particle's last move_window poses with its landmarks held (slam::path_move; implicit only, the other methods ignore it); 'off': none"),
+    p("interval_prior", super::slam_run::INTERVAL_PRIOR_DEFAULT, super::slam_run::INTERVAL_PRIOR_DOC),
     p("move_window", "10", "poses moved per particle by the resample-move (W)"),
     p("move_sweeps", "1", "sweeps over the window per resample-move"),
     p("move_scale", "0.5", "the resample-move's random-walk step relative to the step noise"),
@@ -259,6 +260,9 @@ pub struct Setup {
     pub path_move: Option<crate::slam::path_move::MoveConfig>,
     /// Landmark existence (particle filters; per-particle association).
     pub existence: Option<crate::slam::existence::ExistenceConfig>,
+    /// The particle filters draw each interval's noise at its next step
+    /// with returns.
+    pub interval_prior: bool,
 }
 
 /// Parse the parameters.
@@ -371,6 +375,7 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
         per_run: ps.raw("per_run").map(str::to_string),
         path_move: super::slam_run::parse_move(&ps)?,
         existence,
+        interval_prior: super::slam_run::parse_interval_prior(&ps)?,
     })
 }
 
@@ -430,6 +435,7 @@ pub fn run(
         length += cp.path_length();
         for (i, &(name, m)) in s.methods.iter().enumerate() {
             let mut f = make_filter(name, m, s.model, s.ess_threshold, s.newton)?;
+            f.set_interval_prior(s.interval_prior);
             f.set_path_move(s.path_move)?;
             f.set_existence(s.existence)?;
             let mut est = vec![Pose::zeros(); cp.steps() + 1];
@@ -474,6 +480,10 @@ pub fn run(
     rep.param("runs", runs);
     rep.param("move", super::slam_run::move_name(s.path_move));
     rep.param("existence", super::slam_run::existence_name(s.existence));
+    rep.param(
+        "interval_prior",
+        if s.interval_prior { "on" } else { "off" },
+    );
     rep.param("seed", seed);
     rep.param("data_dir", s.data_dir.display().to_string());
     rep.param("start_time_s", s.carpark.start_time);

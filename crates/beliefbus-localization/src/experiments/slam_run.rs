@@ -42,6 +42,26 @@ pub fn make_filter(
     })
 }
 
+/// `interval_prior`: whether the particle filters draw the noise of the
+/// whole interval since their last step with returns from their proposal
+/// ([`crate::slam::SlamFilter::set_interval_prior`]).
+pub fn parse_interval_prior(ps: &Params) -> Result<bool, LocalizationError> {
+    match ps.raw("interval_prior").unwrap_or(INTERVAL_PRIOR_DEFAULT) {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        v => Err(LocalizationError::Param {
+            key: "interval_prior".into(),
+            msg: format!("'{v}': need 'on' or 'off'"),
+        }),
+    }
+}
+
+/// The default of `interval_prior` in `slam` and `slam-victoria-park`.
+pub const INTERVAL_PRIOR_DEFAULT: &str = "on";
+
+/// The documentation of `interval_prior`, shared by both experiments.
+pub const INTERVAL_PRIOR_DOC: &str = "'on': between steps with returns the particle filters move each particle by the mean model and accumulate its noise (linearised, as EKF-SLAM predicts), and the next step with returns draws the whole interval's noise from its proposal and gates with it (slam::step_setup::StepPrior); 'off': every step's noise drawn from the motion model at once";
+
 /// The resample-move settings from the parameters (`None`: off).
 pub fn parse_move(ps: &Params) -> Result<Option<MoveConfig>, LocalizationError> {
     match ps.raw("move").unwrap_or("off") {
@@ -248,4 +268,71 @@ pub fn run_one(
         },
         map,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn kv(v: &str) -> Vec<(String, String)> {
+        vec![("interval_prior".to_string(), v.to_string())]
+    }
+
+    #[test]
+    fn interval_prior_parses_on_off_and_names_the_key_on_bad_input() {
+        let doc = super::super::slam::PARAMS;
+        let none: Vec<(String, String)> = vec![];
+        assert!(parse_interval_prior(&Params::new(&none, doc).unwrap()).unwrap());
+        assert!(parse_interval_prior(&Params::new(&kv("on"), doc).unwrap()).unwrap());
+        assert!(!parse_interval_prior(&Params::new(&kv("off"), doc).unwrap()).unwrap());
+        match parse_interval_prior(&Params::new(&kv("maybe"), doc).unwrap()) {
+            Err(LocalizationError::Param { key, msg }) => {
+                assert_eq!(key, "interval_prior");
+                assert!(msg.contains("maybe"), "{msg}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    /// Every particle filter takes the prior, EKF-SLAM does not need it,
+    /// and the path-window move (which needs every pose drawn) is refused
+    /// with it.
+    #[test]
+    fn every_particle_filter_takes_the_interval_prior_and_the_move_is_refused_with_it() {
+        let model = crate::slam::SlamModel {
+            ute: Default::default(),
+            motion: Default::default(),
+            laser: crate::laser::LaserNoise {
+                var_range: 0.01,
+                var_bearing: 1e-4,
+            },
+            assoc: Default::default(),
+            max_range: 15.0,
+        };
+        for name in [
+            "implicit",
+            "implicit-rb",
+            "implicit-refine",
+            "fastslam1",
+            "fastslam2",
+        ] {
+            let mut f = make_filter(name, 4, model, 0.5, NewtonSettings::default()).unwrap();
+            assert!(f.set_interval_prior(true), "{name}");
+        }
+        let mut ekf = make_filter("ekf", 1, model, 0.5, NewtonSettings::default()).unwrap();
+        assert!(!ekf.set_interval_prior(true));
+        let mut f = make_filter("implicit", 4, model, 0.5, NewtonSettings::default()).unwrap();
+        f.set_interval_prior(true);
+        let mv = crate::slam::path_move::MoveConfig {
+            window: 5,
+            sweeps: 1,
+            scale: 0.5,
+        };
+        assert!(matches!(
+            f.set_path_move(Some(mv)),
+            Err(LocalizationError::Param { key, .. }) if key == "move"
+        ));
+        f.set_interval_prior(false);
+        assert!(f.set_path_move(Some(mv)).unwrap());
+    }
 }

@@ -167,28 +167,25 @@ impl SlamFilter for FastSlam {
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
         let parts = particle_filter_parts!(self);
-        let StepSetup {
-            step,
-            ute,
-            noise,
-            model,
-            r,
-            log_new,
-            s0,
-            ..
-        } = match begin_step(parts, u, dt, obs, rng, |l: &Landmark| {
+        let setup = match begin_step(parts, u, dt, obs, rng, |l: &Landmark| {
             ([l.m[0], l.m[1]], l.p)
         })? {
             Begin::Predicted(estimate) => return Ok(estimate),
             Begin::Update(c) => c,
         };
+        let StepSetup {
+            step,
+            model,
+            r,
+            log_new,
+            ..
+        } = setup;
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
             let before = self.set.maps[j].len();
             let x = self.set.x[j];
-            let f = ute.predict_mean(&x, u);
-            let t = frame_rotation(x[2]);
-            let sx = t * s0 * t.transpose();
+            let prior = setup.prior(&x, &self.set.acc[j], u);
+            let (f, sx) = (prior.f, prior.cov);
             self.assoc.clear();
             let map = &self.set.maps[j];
             self.scan.begin(obs.len());
@@ -209,7 +206,7 @@ impl SlamFilter for FastSlam {
             let mut lw = 0.0;
             let xi = normal3(rng);
             let xn = match self.version {
-                Version::One => f + noise.draw(x[2], &xi),
+                Version::One => prior.draw(&xi),
                 Version::Two => {
                     let (mut mu, mut sig) = (f, sx);
                     for (z, a) in obs.iter().zip(&self.assoc) {
@@ -226,7 +223,7 @@ impl SlamFilter for FastSlam {
                         Some(c) => mu + c.l() * xi,
                         None => {
                             self.stats.fallbacks += 1;
-                            f + noise.draw(x[2], &xi)
+                            prior.draw(&xi)
                         }
                     }
                 }
@@ -259,6 +256,7 @@ impl SlamFilter for FastSlam {
                 }
             }
             self.set.x[j] = xn;
+            self.set.acc[j] = Matrix3::zeros();
             self.set.logw[j] += lw;
             if let Some(c) = &self.existence {
                 self.stats.removed +=

@@ -153,6 +153,14 @@ impl SlamFilter for ImplicitSlam {
     }
 
     fn set_path_move(&mut self, cfg: Option<MoveConfig>) -> Result<bool, LocalizationError> {
+        if cfg.is_some() && self.set.deferred {
+            // The move needs every pose of its window drawn, which the
+            // deferred prediction does not do.
+            return Err(LocalizationError::Param {
+                key: "move".into(),
+                msg: "does not combine with interval_prior=on".into(),
+            });
+        }
         self.mover = match cfg {
             Some(c) => Some(PathWindow::new(self.set.len(), c)?),
             None => None,
@@ -182,18 +190,7 @@ impl SlamFilter for ImplicitSlam {
             });
         }
         let parts = particle_filter_parts!(self);
-        let StepSetup {
-            step,
-            ute,
-            noise,
-            model,
-            r,
-            half_logdet_r,
-            ln2pi,
-            log_new,
-            motion_norm,
-            s0,
-        } = match begin_step(parts, u, dt, obs, rng, |l: &SampledLandmark| (l.m, l.cov))? {
+        let setup = match begin_step(parts, u, dt, obs, rng, |l: &SampledLandmark| (l.m, l.cov))? {
             Begin::Predicted(estimate) => {
                 if let Some(w) = self.mover.as_mut() {
                     let (ute, noise) = self.model.step_noise(u, dt)?;
@@ -206,16 +203,25 @@ impl SlamFilter for ImplicitSlam {
             }
             Begin::Update(c) => c,
         };
+        let StepSetup {
+            step,
+            ute,
+            noise,
+            model,
+            r,
+            half_logdet_r,
+            ln2pi,
+            log_new,
+            ..
+        } = setup;
         if let Some(w) = self.mover.as_mut() {
             w.advance(ute, u, noise);
         }
         for j in 0..self.set.len() {
             let before = self.set.maps[j].len();
             let x = self.set.x[j];
-            let f = ute.predict_mean(&x, u);
-            let t = crate::geometry::frame_rotation(x[2]);
-            let sx = t * s0 * t.transpose();
-            let prec = noise.precision(x[2]);
+            let prior = setup.prior(&x, &self.set.acc[j], u);
+            let (f, sx, prec) = (prior.f, prior.cov, prior.prec);
             self.known_obs.clear();
             self.known_map.clear();
             self.new_obs.clear();
@@ -288,11 +294,11 @@ impl SlamFilter for ImplicitSlam {
                 match sample {
                     Some((xs, inc)) => {
                         xn = xs;
-                        lw += inc + motion_norm;
+                        lw += inc + prior.norm;
                     }
                     None => {
                         self.stats.fallbacks += 1;
-                        xn = f + noise.draw(x[2], &xi);
+                        xn = prior.draw(&xi);
                         for o in &self.known_obs {
                             lw -= term_cost(&xn, self.known_map[o.landmark], o, &model.laser);
                         }
@@ -323,7 +329,7 @@ impl SlamFilter for ImplicitSlam {
                 match sample {
                     Some((v, inc, cov)) => {
                         xn = Pose::new(v[0], v[1], v[2]);
-                        lw += inc + motion_norm - half_logdet_r + log_new;
+                        lw += inc + prior.norm - half_logdet_r + log_new;
                         self.set.maps[j].push(SampledLandmark {
                             m: [v[3], v[4]],
                             cov,
@@ -332,11 +338,11 @@ impl SlamFilter for ImplicitSlam {
                     }
                     None => {
                         self.stats.fallbacks += 1;
-                        xn = f + noise.draw(x[2], &Vector3::new(xi[0], xi[1], xi[2]));
+                        xn = prior.draw(&Vector3::new(xi[0], xi[1], xi[2]));
                     }
                 }
             } else {
-                xn = f + noise.draw(x[2], &normal3(rng));
+                xn = prior.draw(&normal3(rng));
             }
             for z in &self.new_obs[new_start..] {
                 let (th, inc) =
@@ -354,6 +360,7 @@ impl SlamFilter for ImplicitSlam {
                 });
             }
             self.set.x[j] = xn;
+            self.set.acc[j] = Matrix3::zeros();
             self.set.logw[j] += lw;
             if let Some(c) = &self.existence {
                 self.stats.removed +=

@@ -26,7 +26,7 @@ use super::step_setup::{begin_step, Begin, StepSetup};
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
-use crate::geometry::{frame_rotation, wrap_angle, Point, Pose};
+use crate::geometry::{wrap_angle, Point, Pose};
 use crate::mcl::newton::NewtonSettings;
 use beliefbus_core::rng::SimRng;
 use nalgebra::{Matrix2, Matrix3, Vector3};
@@ -191,31 +191,26 @@ impl SlamFilter for ImplicitRbSlam {
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
         let parts = particle_filter_parts!(self);
-        let StepSetup {
-            step,
-            ute,
-            noise,
-            model,
-            r,
-            ln2pi,
-            log_new,
-            motion_norm,
-            s0,
-            ..
-        } = match begin_step(parts, u, dt, obs, rng, |l: &Landmark| {
+        let setup = match begin_step(parts, u, dt, obs, rng, |l: &Landmark| {
             ([l.m[0], l.m[1]], l.p)
         })? {
             Begin::Predicted(estimate) => return Ok(estimate),
             Begin::Update(c) => c,
         };
+        let StepSetup {
+            step,
+            model,
+            r,
+            ln2pi,
+            log_new,
+            ..
+        } = setup;
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
             let before = self.set.maps[j].len();
             let x = self.set.x[j];
-            let f = ute.predict_mean(&x, u);
-            let t = frame_rotation(x[2]);
-            let sx = t * s0 * t.transpose();
-            let prec = noise.precision(x[2]);
+            let prior = setup.prior(&x, &self.set.acc[j], u);
+            let (f, sx, prec) = (prior.f, prior.cov, prior.prec);
             self.assoc.clear();
             self.terms.clear();
             let mut lw = 0.0;
@@ -249,13 +244,13 @@ impl SlamFilter for ImplicitRbSlam {
             }
             let xi = normal3(rng);
             let xn = if self.terms.is_empty() {
-                f + noise.draw(x[2], &xi)
+                prior.draw(&xi)
             } else {
                 let terms = &self.terms;
                 let sample = minimise(&f, &prec, terms, &self.newton).and_then(|(mu, _, l, it)| {
                     self.stats.newton_iters += it;
                     let (xs, inc) = linear_map_draw(&mu, &l, &xi, |x| eval(x, &f, &prec, terms).0)?;
-                    Some((xs, inc + motion_norm))
+                    Some((xs, inc + prior.norm))
                 });
                 match sample {
                     Some((xs, inc)) => {
@@ -264,7 +259,7 @@ impl SlamFilter for ImplicitRbSlam {
                     }
                     None => {
                         self.stats.fallbacks += 1;
-                        let xs = f + noise.draw(x[2], &xi);
+                        let xs = prior.draw(&xi);
                         for t in &self.terms {
                             let (nu, _, _) = innovation(&xs, t.m, &t.z);
                             lw -= 0.5 * nu.dot(&(t.sinv * nu));
@@ -298,6 +293,7 @@ impl SlamFilter for ImplicitRbSlam {
                 }
             }
             self.set.x[j] = xn;
+            self.set.acc[j] = Matrix3::zeros();
             self.set.logw[j] += lw;
             if let Some(c) = &self.existence {
                 self.stats.removed +=

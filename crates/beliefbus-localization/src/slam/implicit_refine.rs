@@ -169,31 +169,27 @@ impl SlamFilter for ImplicitRefineSlam {
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
         let parts = particle_filter_parts!(self);
+        let setup = match begin_step(parts, u, dt, obs, rng, |l: &RefinedLandmark| (l.m, l.cov))? {
+            Begin::Predicted(estimate) => return Ok(estimate),
+            Begin::Update(c) => c,
+        };
         let StepSetup {
             step,
-            ute,
-            noise,
             model,
             r,
             half_logdet_r,
             ln2pi,
             log_new,
-            motion_norm,
-            s0,
-        } = match begin_step(parts, u, dt, obs, rng, |l: &RefinedLandmark| (l.m, l.cov))? {
-            Begin::Predicted(estimate) => return Ok(estimate),
-            Begin::Update(c) => c,
-        };
+            ..
+        } = setup;
         let rinv = Matrix2::new(1.0 / r[(0, 0)], 0.0, 0.0, 1.0 / r[(1, 1)]);
         let (it, tol) = (self.newton.max_iter, self.newton.tol);
         let bad = |what| LocalizationError::NonFinite { what, step };
         for j in 0..self.set.len() {
             let before = self.set.maps[j].len();
             let x = self.set.x[j];
-            let f = ute.predict_mean(&x, u);
-            let t = crate::geometry::frame_rotation(x[2]);
-            let sx = t * s0 * t.transpose();
-            let prec = noise.precision(x[2]);
+            let prior = setup.prior(&x, &self.set.acc[j], u);
+            let (f, sx, prec) = (prior.f, prior.cov, prior.prec);
             self.assoc.clear();
             let map = &self.set.maps[j];
             self.scan.begin(obs.len());
@@ -253,7 +249,7 @@ impl SlamFilter for ImplicitRefineSlam {
                     rng.sample(StandardNormal),
                 ));
             }
-            let mut xn = f + noise.draw(x[2], &xi_x);
+            let mut xn = prior.draw(&xi_x);
             let mut drawn = false;
             if p > 0 {
                 let arrow = &mut self.arrow;
@@ -275,7 +271,7 @@ impl SlamFilter for ImplicitRefineSlam {
                             }
                         }
                         if back.is_finite() {
-                            lw += inc + back + motion_norm
+                            lw += inc + back + prior.norm
                                 - n_ret as f64 * half_logdet_r
                                 - (n_ret - n_new) as f64 * ln2pi
                                 + n_new as f64 * log_new;
@@ -285,7 +281,7 @@ impl SlamFilter for ImplicitRefineSlam {
                 }
                 if !drawn {
                     self.stats.fallbacks += 1;
-                    xn = f + noise.draw(x[2], &xi_x);
+                    xn = prior.draw(&xi_x);
                 }
             }
             if !xn.iter().all(|c| c.is_finite()) {
@@ -333,6 +329,7 @@ impl SlamFilter for ImplicitRefineSlam {
                 }
             }
             self.set.x[j] = xn;
+            self.set.acc[j] = Matrix3::zeros();
             self.set.logw[j] += lw;
             if let Some(c) = &self.existence {
                 self.stats.removed +=

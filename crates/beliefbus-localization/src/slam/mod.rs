@@ -18,7 +18,9 @@
 //!
 //! Every filter associates each return by the one maximum-likelihood rule
 //! with the same gates ([`assoc`]), predicts with the same kinematics (E10)
-//! and noise Σ₁ = T(β) Σ₀(u) T(β)ᵀ every odometry step, and weighs returns
+//! and noise Σ₁ = T(β) Σ₀(u) T(β)ᵀ every odometry step (the particle
+//! filters optionally deferring the noise of steps without returns to the
+//! next step with returns, [`step_setup::StepPrior`]), and weighs returns
 //! with the same Σ₂. A return associated with no landmark starts one; the
 //! flat prior on its position is taken uniform over the laser's forward
 //! half circle (area A = π r_max²/2), which fixes the weight of a new
@@ -47,6 +49,12 @@ macro_rules! particle_set_diagnostics {
     () => {
         fn set_shared_association(&mut self, on: bool) {
             self.shared = on;
+        }
+
+        fn set_interval_prior(&mut self, on: bool) -> bool {
+            self.set.deferred = on;
+            self.set.acc.fill(nalgebra::Matrix3::zeros());
+            true
         }
 
         fn set_existence(
@@ -109,6 +117,8 @@ pub mod fastslam;
 pub mod implicit;
 pub mod implicit_rb;
 pub mod implicit_refine;
+#[cfg(test)]
+mod interval_prior_tests;
 pub mod joint;
 pub mod map;
 pub mod particles;
@@ -242,6 +252,16 @@ pub trait SlamFilter {
     /// Particle filters: associate each return once for the whole set
     /// ([`shared_assoc`]) instead of once per particle; from the next reset.
     fn set_shared_association(&mut self, _on: bool) {}
+    /// Particle filters: on steps without returns move each particle by
+    /// the mean model and accumulate its noise (linearised, as EKF-SLAM's
+    /// prediction), so that the next step with returns draws the whole
+    /// interval's noise from its proposal and associates with the whole
+    /// interval's pose uncertainty ([`particles::SlamParticles::predict_only`],
+    /// [`step_setup::StepPrior`]). Whether the filter has the setting
+    /// (`false`: EKF-SLAM, whose prediction already does this).
+    fn set_interval_prior(&mut self, _on: bool) -> bool {
+        false
+    }
     /// Associate a scan's returns jointly, one landmark per return at most
     /// ([`scan_assoc`]), instead of each return on its own.
     fn set_exclusion(&mut self, _e: scan_assoc::Exclusion) {}

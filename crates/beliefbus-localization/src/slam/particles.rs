@@ -18,6 +18,7 @@ use crate::geometry::Pose;
 use beliefbus_core::filter::resample::systematic;
 use beliefbus_core::math::weights::normalise;
 use beliefbus_core::rng::SimRng;
+use nalgebra::Matrix3;
 
 /// Number of ancestor-label slots per particle.
 pub const LINEAGE_SLOTS: usize = 4;
@@ -32,8 +33,18 @@ pub struct SlamParticles<L: Clone> {
     pub ev: Vec<SharedMap<f32>>,
     pub logw: Vec<f64>,
     pub w: Vec<f64>,
+    /// Per particle, the covariance (world frame) of its pose given its
+    /// pose at the last step with returns, linearised along the noise-free
+    /// prediction ([`SlamParticles::predict_only`] with `deferred`); zero
+    /// while `deferred` is off.
+    pub acc: Vec<Matrix3<f64>>,
+    /// Steps without returns move each particle by the mean model and
+    /// accumulate the noise in `acc`, for the next step with returns to
+    /// draw the whole interval's noise from its proposal.
+    pub deferred: bool,
     anc: Vec<usize>,
     tmp_x: Vec<Pose>,
+    tmp_acc: Vec<Matrix3<f64>>,
     tmp_maps: Vec<SharedMap<L>>,
     tmp_ev: Vec<SharedMap<f32>>,
     lineage: Vec<[u32; LINEAGE_SLOTS]>,
@@ -66,8 +77,11 @@ impl<L: Clone> SlamParticles<L> {
             ev: vec![SharedMap::new(); m],
             logw: vec![0.0; m],
             w: vec![1.0 / m as f64; m],
+            acc: vec![Matrix3::zeros(); m],
+            deferred: false,
             anc: vec![0; m],
             tmp_x: vec![Pose::zeros(); m],
+            tmp_acc: vec![Matrix3::zeros(); m],
             tmp_maps: vec![SharedMap::new(); m],
             tmp_ev: vec![SharedMap::new(); m],
             lineage: vec![[0; LINEAGE_SLOTS]; m],
@@ -91,6 +105,7 @@ impl<L: Clone> SlamParticles<L> {
     pub fn reset(&mut self, start: &Pose) {
         let m = self.len();
         self.x.fill(*start);
+        self.acc.fill(Matrix3::zeros());
         for mp in self.maps.iter_mut() {
             *mp = SharedMap::new();
         }
@@ -118,12 +133,14 @@ impl<L: Clone> SlamParticles<L> {
                 .map_err(|_| LocalizationError::Degenerate { step })?;
             for (k, &a) in self.anc.iter().enumerate() {
                 self.tmp_x[k] = self.x[a];
+                self.tmp_acc[k] = self.acc[a];
                 self.tmp_maps[k].share_from(&self.maps[a]);
                 self.tmp_ev[k].share_from(&self.ev[a]);
                 self.tmp_lineage[k] = self.lineage[a];
             }
             std::mem::swap(&mut self.lineage, &mut self.tmp_lineage);
             std::mem::swap(&mut self.x, &mut self.tmp_x);
+            std::mem::swap(&mut self.acc, &mut self.tmp_acc);
             std::mem::swap(&mut self.maps, &mut self.tmp_maps);
             std::mem::swap(&mut self.ev, &mut self.tmp_ev);
             self.logw.fill(0.0);
@@ -161,8 +178,17 @@ impl<L: Clone> SlamParticles<L> {
         crate::geometry::mean_pose(&self.x, &self.w)
     }
 
-    /// A step without laser returns: every pose moved by the motion model
-    /// (the prior is the proposal; the weights do not change).
+    /// A step without laser returns; the weights do not change. Without
+    /// `deferred` every pose is moved by the motion model (the prior is the
+    /// proposal). With it every pose follows the mean model and its noise
+    /// is accumulated, linearised (as EKF-SLAM's prediction):
+    ///
+    /// ```text
+    /// x ← f(x, u),  C ← F C Fᵀ + Σ₁(β),  F = ∂f/∂x at x
+    /// ```
+    ///
+    /// so that the next step with returns draws the pose at the end of the
+    /// whole interval from N(f, F C Fᵀ + Σ₁) and the returns.
     pub fn predict_only(
         &mut self,
         ute: &crate::vehicle::Ute,
@@ -170,9 +196,19 @@ impl<L: Clone> SlamParticles<L> {
         u: crate::vehicle::Control,
         rng: &mut SimRng,
     ) -> Pose {
-        for x in self.x.iter_mut() {
-            let xi = crate::carpark::normal3(rng);
-            *x = ute.predict_mean(x, u) + noise.draw(x[2], &xi);
+        if self.deferred {
+            let s0 = noise.chol * noise.chol.transpose();
+            for (x, c) in self.x.iter_mut().zip(self.acc.iter_mut()) {
+                let fx = super::ekf::motion_jacobian(ute, x[2], u);
+                let t = crate::geometry::frame_rotation(x[2]);
+                *c = fx * *c * fx.transpose() + t * s0 * t.transpose();
+                *x = ute.predict_mean(x, u);
+            }
+        } else {
+            for x in self.x.iter_mut() {
+                let xi = crate::carpark::normal3(rng);
+                *x = ute.predict_mean(x, u) + noise.draw(x[2], &xi);
+            }
         }
         self.estimate()
     }

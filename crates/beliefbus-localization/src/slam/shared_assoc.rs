@@ -83,7 +83,7 @@ pub fn shared_offers<L: Clone>(
         // normalised weights.
         let (mut nu_bar, mut s_bar) = (Vector2::zeros(), Matrix2::zeros());
         for (j, x) in set.x.iter().enumerate() {
-            let (nu, s) = predicted(ute, u, s0, r, x, set.maps[j].get(k)?, lm, z);
+            let (nu, s) = predicted(ute, u, s0, &set.acc[j], r, x, set.maps[j].get(k)?, lm, z);
             nu_bar += set.w[j] * nu;
             s_bar += set.w[j] * (s + nu * nu.transpose());
         }
@@ -93,12 +93,14 @@ pub fn shared_offers<L: Clone>(
     Some(())
 }
 
-/// ν and S of return z for one particle at pose x with landmark l.
+/// ν and S of return z for one particle at pose x with landmark l and
+/// accumulated noise `acc` (zero: the step's Σ₁ alone).
 #[allow(clippy::too_many_arguments)]
 fn predicted<L>(
     ute: &Ute,
     u: Control,
     s0: &Matrix3<f64>,
+    acc: &Matrix3<f64>,
     r: &Matrix2<f64>,
     x: &Pose,
     l: &L,
@@ -108,7 +110,11 @@ fn predicted<L>(
     let f = ute.predict_mean(x, u);
     let (m, sm) = lm(l);
     let t = frame_rotation(x[2]);
-    let sx = t * s0 * t.transpose();
+    let mut sx = t * s0 * t.transpose();
+    if *acc != Matrix3::zeros() {
+        let fx = super::ekf::motion_jacobian(ute, x[2], u);
+        sx += fx * acc * fx.transpose();
+    }
     let (nu, hx, hm) = innovation(&f, m, z);
     (nu, hx * sx * hx.transpose() + hm * sm * hm.transpose() + r)
 }
