@@ -53,6 +53,10 @@ pub struct StageFigures {
     /// queued at shutdown) — for control: beliefs without a control.
     #[serde(default)]
     pub dropped: u64,
+    /// The drops by reason (lost, shutdown, stale, superseded), as the run
+    /// report counts them.
+    #[serde(default)]
+    pub dropped_by_reason: std::collections::BTreeMap<String, u64>,
     /// Of the stale drops, those published while the stage was waiting.
     #[serde(default)]
     pub dropped_stale_idle: u64,
@@ -178,6 +182,14 @@ fn stage_figures(report: &serde_json::Value) -> Vec<(String, StageFigures)> {
                 StageFigures {
                     processed: s["processed"].as_u64().unwrap_or(0),
                     dropped: s["dropped"].as_u64().unwrap_or(0),
+                    dropped_by_reason: s["dropped_by_reason"]
+                        .as_object()
+                        .map(|o| {
+                            o.iter()
+                                .filter_map(|(k, v)| Some((k.clone(), v.as_u64()?)))
+                                .collect()
+                        })
+                        .unwrap_or_default(),
                     dropped_stale_idle: s["dropped_stale_idle"].as_u64().unwrap_or(0),
                     deadline_misses: s["deadline_misses"].as_u64().unwrap_or(0),
                     deadline_misses_preempted: s["deadline_misses_preempted"].as_u64().unwrap_or(0),
@@ -372,5 +384,29 @@ impl PipelineJitter {
     /// The percentile block of the control period jitter.
     pub fn control_block(&self) -> PctBlock {
         PctBlock::of(&self.control_period_jitter)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::stage_figures;
+
+    #[test]
+    fn a_stage_s_drops_keep_their_reasons_from_the_run_report() {
+        let report = serde_json::json!({"stages": {"control": {
+            "processed": 100, "dropped": 4, "dropped_stale_idle": 1,
+            "dropped_by_reason": {"lost": 0, "shutdown": 1, "stale": 3, "superseded": 0},
+            "deadline_misses": 0, "core": 0
+        }}});
+        let stages = stage_figures(&report);
+        assert_eq!(stages.len(), 1);
+        let (name, f) = &stages[0];
+        assert_eq!(name, "control");
+        assert_eq!(f.dropped, 4);
+        assert_eq!(f.dropped_by_reason["stale"], 3);
+        assert_eq!(f.dropped_by_reason["shutdown"], 1);
+        assert_eq!(f.dropped_by_reason.values().sum::<u64>(), f.dropped);
+        assert_eq!(f.dropped_stale_idle, 1);
+        assert_eq!(f.core, Some(0));
     }
 }

@@ -213,12 +213,20 @@ impl JitterReport {
             );
             let o = |x: Option<f64>| x.map(|v| format!("{v:.1}")).unwrap_or_else(|| "-".into());
             for (name, f) in &p.stages {
+                // Why inputs went unprocessed: the reasons with a count.
+                let mut why: Vec<String> = f
+                    .dropped_by_reason
+                    .iter()
+                    .filter(|(_, &n)| n > 0)
+                    .map(|(r, n)| format!("{r} {n}"))
+                    .collect();
+                why.push(format!("stale while idle {}", f.dropped_stale_idle));
                 s += &format!(
-                    "  {:<8} processed {:>8}  dropped {:>5} (stale while idle {:>4})  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5} (preempted {:>5}, host {:>5})  late {:>5}  lateness p99 {:>8}\n",
+                    "  {:<8} processed {:>8}  dropped {:>5} ({})  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5} (preempted {:>5}, host {:>5})  late {:>5}  lateness p99 {:>8}\n",
                     name,
                     f.processed,
                     f.dropped,
-                    f.dropped_stale_idle,
+                    why.join(", "),
                     o(f.compute_p50_us),
                     o(f.compute_p99_us),
                     o(f.budget_us),

@@ -136,13 +136,16 @@ impl Slam {
     }
     /// The pose covariance (row-major 3 × 3) about `mean`.
     fn pose_cov(&self, mean: &Pose) -> [[f64; POSE]; POSE] {
+        // Between returns (the interval prior) each particle carries the
+        // noise it has not drawn yet as a covariance C_i, so the pose
+        // covariance is the mixture's: Σ_i w_i (d_i d_iᵀ + C_i).
         fn scatter<L: Clone>(set: &SlamParticles<L>, mean: &Pose) -> [[f64; POSE]; POSE] {
             let mut c = [[0.0; POSE]; POSE];
-            for (x, &w) in set.x.iter().zip(&set.w) {
+            for ((x, &w), acc) in set.x.iter().zip(&set.w).zip(&set.acc) {
                 let d = [x[0] - mean[0], x[1] - mean[1], wrap_angle(x[2] - mean[2])];
                 for a in 0..POSE {
                     for b in 0..POSE {
-                        c[a][b] += w * d[a] * d[b];
+                        c[a][b] += w * (d[a] * d[b] + acc[(a, b)]);
                     }
                 }
             }
@@ -229,7 +232,12 @@ impl LiveSlam {
         dims: Dims,
         ctx: &FilterContext,
     ) -> Result<Self, String> {
-        let (name, slam) = slam?;
+        let (name, mut slam) = slam?;
+        // The particle filters draw the noise of the odometry steps between
+        // two scans at the next scan, from a proposal that sees its returns
+        // (slam::particles, "interval prior"), as the offline experiments
+        // do by default; the EKF has no such setting.
+        slam.get().set_interval_prior(true);
         if !(cfg.time_scale.is_finite() && cfg.time_scale > 0.0) {
             return Err(format!(
                 "the time scale must be > 0, got {}",

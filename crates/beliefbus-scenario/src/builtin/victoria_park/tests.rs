@@ -253,6 +253,8 @@ fn live_slam_follows_the_filter_stepped_on_the_recording() {
             _ => Box::new(ImplicitSlam::new(cfg.model, 20, 0.5, cfg.newton).unwrap()),
         };
         direct.reset(&sys.start);
+        // The live stage runs the particle filters with the interval prior.
+        direct.set_interval_prior(true);
         let mut rng = crate::rng::stream(7, 0);
         let mut pending: Vec<RangeBearing> = Vec::new();
         let (mut k, mut worst, mut maps) = (0, 0.0f64, 0.0);
@@ -291,6 +293,66 @@ fn live_slam_follows_the_filter_stepped_on_the_recording() {
         let seen = synthetic_seen().1 as f64;
         assert!(seen >= 10.0);
         assert_eq!(maps, seen, "{name}");
+    }
+}
+
+/// Without returns the live particle filters draw no odometry noise
+/// (the interval prior defers it to the next returns), so their particles
+/// coincide and the pose covariance they publish is the accumulated one,
+/// C ← F C Fᵀ + Σ₁: exactly EKF-SLAM's pose covariance after the same
+/// predictions.
+#[test]
+fn between_scans_the_live_particle_filters_publish_the_ekf_pose_covariance() {
+    let sys = system();
+    let cfg = sys.slam_config();
+    let samples = replay(&sys);
+    let (m, s) = sys.prior();
+    let ctx = FilterContext {
+        seed: 3,
+        sample_dt: DT / SPEEDUP,
+        start: Gaussian::diagonal(&m, &s),
+        resumed: false,
+        t0: 0.0,
+    };
+    // Odometry only: the scans are left out, so no step has returns.
+    let odometry: Vec<_> = samples
+        .iter()
+        .filter(|(ch, _, _)| *ch == 0)
+        .take(40)
+        .collect();
+    assert_eq!(odometry.len(), 40);
+    let step = |f: &mut LiveSlam, (ch, t, y): &(usize, f64, [f64; 8])| {
+        let comps = &sys.sensor_channels()[*ch].components;
+        let mask = ObsMask(comps.iter().map(|c| 1u32 << c).sum());
+        f.predict(*t, &[0.0]).unwrap();
+        f.update(&Measurement { y, mask, std: None }).unwrap();
+    };
+    const POSE: usize = 3;
+    for name in BACKENDS.iter().filter(|&&n| n != EKF_SLAM) {
+        let mut live = LiveSlam::new(name, &cfg, sys.dims(), &ctx)
+            .unwrap()
+            .unwrap();
+        let mut ekf = LiveSlam::new(EKF_SLAM, &cfg, sys.dims(), &ctx)
+            .unwrap()
+            .unwrap();
+        for smp in &odometry {
+            step(&mut live, smp);
+            step(&mut ekf, smp);
+            let (a, b) = (live.belief(), ekf.belief());
+            for i in 0..POSE {
+                for j in 0..POSE {
+                    let (x, y) = (a.cov()[j * a.dim + i], b.cov()[j * b.dim + i]);
+                    assert!(
+                        (x - y).abs() <= 1e-9 * (1.0 + y.abs()),
+                        "{name}: cov[{i}][{j}] {x} vs EKF {y}"
+                    );
+                }
+            }
+        }
+        // Not a comparison of two zeros: the uncertainty has grown.
+        let b = ekf.belief();
+        let tr: f64 = (0..POSE).map(|i| b.cov()[i * b.dim + i]).sum();
+        assert!(tr > 1e-6, "{name}: trace {tr}");
     }
 }
 
