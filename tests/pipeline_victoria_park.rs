@@ -71,7 +71,7 @@ fn implicit_slam_maps_the_first_minute_of_victoria_park_live() {
         "4",
     );
     assert_eq!(r["scenario"], "victoria-park");
-    assert_eq!(r["filter_backend"], "implicit-slam");
+    assert_eq!(r["filter_backend"], "implicit-refine-slam");
     for s in ["ingest", "filter", "plant"] {
         let st = &r["stages"][s];
         assert_eq!(st["rejected"], 0, "{s}: {st}");
