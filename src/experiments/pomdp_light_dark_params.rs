@@ -92,32 +92,42 @@ pub const PARAMS: &[ParamDoc] = &[
     ),
 ];
 
-/// `--param rows=kernel|moment` (read directly: a word, not a number).
+/// A two-word `--param key=off|on` (read directly: a word, not a number),
+/// recorded in the report; true for `on`, `off` when absent.
+fn word_choice(
+    args: &crate::experiments::ExperimentArgs,
+    rep: &mut crate::experiments::ExperimentReport,
+    key: &str,
+    off: &str,
+    on: &str,
+) -> anyhow::Result<bool> {
+    let raw = args
+        .params
+        .iter()
+        .rev()
+        .find(|(k, _)| k == key)
+        .map(|(_, v)| v.trim().to_string());
+    let chosen = match raw.as_deref() {
+        None => false,
+        Some(v) if v == off => false,
+        Some(v) if v == on => true,
+        Some(v) => anyhow::bail!("--param {key}: '{off}' or '{on}', not '{v}'"),
+    };
+    rep.param(key, if chosen { on } else { off });
+    Ok(chosen)
+}
+
+/// `--param rows=kernel|moment`.
 pub fn rows(
     args: &crate::experiments::ExperimentArgs,
     rep: &mut crate::experiments::ExperimentReport,
 ) -> anyhow::Result<beliefbus_pomdp::chain_pomdp::Rows> {
     use beliefbus_pomdp::chain_pomdp::Rows;
-    let raw = args
-        .params
-        .iter()
-        .rev()
-        .find(|(k, _)| k == "rows")
-        .map(|(_, v)| v.trim().to_string());
-    let rows = match raw.as_deref() {
-        None | Some("kernel") => Rows::Kernel,
-        Some("moment") => Rows::Moment,
-        Some(v) => anyhow::bail!("--param rows: 'kernel' or 'moment', not '{v}'"),
-    };
-    rep.param(
-        "rows",
-        if rows == Rows::Moment {
-            "moment"
-        } else {
-            "kernel"
-        },
-    );
-    Ok(rows)
+    Ok(if word_choice(args, rep, "rows", "kernel", "moment")? {
+        Rows::Moment
+    } else {
+        Rows::Kernel
+    })
 }
 
 /// `--param goal_reward=state|cell`: true for `cell`.
@@ -125,19 +135,7 @@ pub fn cell_goal(
     args: &crate::experiments::ExperimentArgs,
     rep: &mut crate::experiments::ExperimentReport,
 ) -> anyhow::Result<bool> {
-    let raw = args
-        .params
-        .iter()
-        .rev()
-        .find(|(k, _)| k == "goal_reward")
-        .map(|(_, v)| v.trim().to_string());
-    let cell = match raw.as_deref() {
-        None | Some("state") => false,
-        Some("cell") => true,
-        Some(v) => anyhow::bail!("--param goal_reward: 'state' or 'cell', not '{v}'"),
-    };
-    rep.param("goal_reward", if cell { "cell" } else { "state" });
-    Ok(cell)
+    word_choice(args, rep, "goal_reward", "state", "cell")
 }
 
 /// Every `--param` key must be one of [`PARAMS`].
@@ -162,18 +160,7 @@ pub fn budgets(
     sizes: &[usize],
     solve_s: f64,
 ) -> anyhow::Result<Vec<f64>> {
-    let raw = args
-        .params
-        .iter()
-        .rev()
-        .find(|(k, _)| k == "budget")
-        .map(|(_, v)| v.trim().to_string());
-    let per_state = match raw.as_deref() {
-        None | Some("fixed") => false,
-        Some("per_state") => true,
-        Some(v) => anyhow::bail!("--param budget: 'fixed' or 'per_state', not '{v}'"),
-    };
-    rep.param("budget", if per_state { "per_state" } else { "fixed" });
+    let per_state = word_choice(args, rep, "budget", "fixed", "per_state")?;
     let first = sizes.first().copied().unwrap_or(1).max(1) as f64;
     Ok(sizes
         .iter()
@@ -192,17 +179,42 @@ pub fn cliff(
     args: &crate::experiments::ExperimentArgs,
     rep: &mut crate::experiments::ExperimentReport,
 ) -> anyhow::Result<bool> {
-    let raw = args
-        .params
-        .iter()
-        .rev()
-        .find(|(k, _)| k == "edge")
-        .map(|(_, v)| v.trim().to_string());
-    let cliff = match raw.as_deref() {
-        None | Some("wall") => false,
-        Some("cliff") => true,
-        Some(v) => anyhow::bail!("--param edge: 'wall' or 'cliff', not '{v}'"),
-    };
-    rep.param("edge", if cliff { "cliff" } else { "wall" });
-    Ok(cliff)
+    word_choice(args, rep, "edge", "wall", "cliff")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::experiments::{ExperimentArgs, ExperimentReport};
+
+    fn args(kv: &[(&str, &str)]) -> ExperimentArgs {
+        ExperimentArgs {
+            params: kv
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect(),
+            ..ExperimentArgs::default()
+        }
+    }
+
+    #[test]
+    fn a_word_param_takes_its_two_words_records_them_and_names_the_key_otherwise() {
+        let mut rep = ExperimentReport::new("t");
+        assert!(!cliff(&args(&[]), &mut rep).unwrap());
+        assert_eq!(rep.params["edge"], "wall");
+        assert!(cliff(&args(&[("edge", " cliff ")]), &mut rep).unwrap());
+        assert_eq!(rep.params["edge"], "cliff");
+        // The last of repeated keys wins.
+        let two = args(&[("goal_reward", "cell"), ("goal_reward", "state")]);
+        assert!(!cell_goal(&two, &mut rep).unwrap());
+        assert_eq!(
+            budgets(&args(&[("budget", "per_state")]), &mut rep, &[75, 150], 2.0).unwrap(),
+            vec![2.0, 4.0]
+        );
+        let e = rows(&args(&[("rows", "moments")]), &mut rep).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "--param rows: 'kernel' or 'moment', not 'moments'"
+        );
+    }
 }
