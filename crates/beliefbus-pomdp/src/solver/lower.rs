@@ -20,13 +20,25 @@ use crate::belief::{Branch, SparseBelief};
 use crate::model::Pomdp;
 
 pub struct LowerBound {
+    /// Change only through [`LowerBound::add`] and [`LowerBound::prune`]:
+    /// they keep [`LowerBound::by_state`] in step.
     pub vectors: Vec<Vec<f64>>,
     pub actions: Vec<usize>,
     /// The plan node of each vector in [`LowerBound::graph`].
     pub nodes: Vec<u32>,
     /// Every kept vector's plan ([`super::graph`]).
     pub graph: PlanGraph,
+    /// The vectors transposed, `by_state[s·cap + k] = vectors[k][s]`:
+    /// [`LowerBound::best`] at a sparse belief then reads one contiguous
+    /// run of |Γ| values per state of its support instead of gathering
+    /// from every vector, the backups' dominant cost when Γ holds
+    /// thousands of vectors.
+    by_state: Vec<f64>,
+    cap: usize,
 }
+
+/// Vectors scored together by [`LowerBound::best`] (a stack buffer).
+const BEST_CHUNK: usize = 64;
 
 impl LowerBound {
     /// Blind-policy vectors, iterated until the change is below `tol`.
@@ -39,6 +51,8 @@ impl LowerBound {
             actions: Vec::new(),
             nodes: Vec::new(),
             graph: PlanGraph::new(p.n_obs()),
+            by_state: Vec::new(),
+            cap: 0,
         };
         for a in 0..p.n_actions() {
             let mut v = vec![lo / (1.0 - g); n];
@@ -67,15 +81,59 @@ impl LowerBound {
     }
 
     /// Index and value of the best vector at `b`.
+    /// Ties go to the lowest index; each `α·b` is summed in the support's
+    /// order, as [`SparseBelief::dot`] does, so the result is the same to
+    /// the bit as scoring the vectors one by one.
     pub fn best(&self, b: &SparseBelief) -> (usize, f64) {
         let mut best = (0, f64::NEG_INFINITY);
-        for (k, v) in self.vectors.iter().enumerate() {
-            let x = b.dot(v);
-            if x > best.1 {
-                best = (k, x);
+        let n = self.vectors.len();
+        let mut acc = [0.0f64; BEST_CHUNK];
+        let mut start = 0;
+        while start < n {
+            let len = BEST_CHUNK.min(n - start);
+            let acc = &mut acc[..len];
+            // −0.0 is the identity of f64 addition, as in `Iterator::sum`.
+            acc.iter_mut().for_each(|x| *x = -0.0);
+            for (&s, &p) in b.idx.iter().zip(&b.val) {
+                let row = s as usize * self.cap + start;
+                for (x, &v) in acc.iter_mut().zip(&self.by_state[row..row + len]) {
+                    *x += p * v;
+                }
             }
+            for (j, &x) in acc.iter().enumerate() {
+                if x > best.1 {
+                    best = (start + j, x);
+                }
+            }
+            start += len;
         }
         best
+    }
+
+    /// Rebuilds [`LowerBound::by_state`] with room for `cap` vectors.
+    fn rebuild(&mut self, cap: usize) {
+        let ns = self.vectors.first().map_or(0, Vec::len);
+        self.cap = cap;
+        self.by_state.clear();
+        self.by_state.resize(ns * cap, 0.0);
+        for (k, v) in self.vectors.iter().enumerate() {
+            for (s, &x) in v.iter().enumerate() {
+                self.by_state[s * cap + k] = x;
+            }
+        }
+    }
+
+    /// Removes vector `k` (the last takes its place, as `swap_remove`).
+    fn remove(&mut self, k: usize) -> u32 {
+        let last = self.vectors.len() - 1;
+        if k != last {
+            for s in 0..self.vectors[k].len() {
+                self.by_state[s * self.cap + k] = self.by_state[s * self.cap + last];
+            }
+        }
+        self.vectors.swap_remove(k);
+        self.actions.swap_remove(k);
+        self.nodes.swap_remove(k)
     }
 
     pub fn value(&self, b: &SparseBelief) -> f64 {
@@ -165,17 +223,23 @@ impl LowerBound {
         let mut k = 0;
         while k < self.vectors.len() {
             if alpha.iter().zip(&self.vectors[k]).all(|(x, y)| x >= y) {
-                self.vectors.swap_remove(k);
-                self.actions.swap_remove(k);
-                let old = self.nodes.swap_remove(k);
+                let old = self.remove(k);
                 self.graph.replace(old, node);
             } else {
                 k += 1;
             }
         }
+        let k = self.vectors.len();
         self.vectors.push(alpha);
         self.actions.push(action);
         self.nodes.push(node);
+        if k >= self.cap || self.vectors[0].len() != self.vectors[k].len() {
+            self.rebuild((2 * self.cap).max(k + 1).max(BEST_CHUNK));
+        } else {
+            for (s, &x) in self.vectors[k].iter().enumerate() {
+                self.by_state[s * self.cap + k] = x;
+            }
+        }
         true
     }
 
@@ -200,5 +264,10 @@ impl LowerBound {
             k += 1;
             keep[k - 1]
         });
+        self.rebuild(self.cap);
     }
 }
+
+#[cfg(test)]
+#[path = "lower_tests.rs"]
+mod tests;
