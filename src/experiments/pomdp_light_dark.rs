@@ -76,8 +76,7 @@ use crate::chain::{Chain, ChainConfig, NearRule, Sampler};
 use crate::rng::{self, SimRng};
 use anyhow::{Context, Result};
 use beliefbus_pomdp::chain_pomdp::{self, cliff, warm, ChainPomdp, ChainPomdpSpec, Rows, Terminal};
-use beliefbus_pomdp::solver::graph::Controller;
-use beliefbus_pomdp::{simulate, solve, AlphaPolicy, SimulateOptions, Solution, SolveOptions};
+use beliefbus_pomdp::{simulate, solve, AlphaPolicy, SimulateOptions, Solution};
 use rand::{RngExt, SeedableRng};
 use std::path::Path;
 use std::time::Duration;
@@ -101,6 +100,7 @@ mod size_row;
 use continuous::{value as continuous_value, Edge, Truth};
 pub use model::{goal_2d, light_2d, Boxes, LightDark, LightDarkObs};
 pub use params::PARAMS;
+use params::{solve_opts, solve_opts_gap};
 pub use plot::{trajectory, Step};
 
 /// Thesis Fig. 4-8 (states, reward, ±) and Fig. 4-7 (solver s, reward, ±)
@@ -189,23 +189,6 @@ fn spec_for(
                     .collect()
             },
         }),
-    }
-}
-
-fn solve_opts(secs: f64, initial: Option<Controller>) -> SolveOptions {
-    solve_opts_gap(secs, initial, 0.5)
-}
-
-fn solve_opts_gap(secs: f64, initial: Option<Controller>, trial_gap: f64) -> SolveOptions {
-    SolveOptions {
-        trial_gap_fraction: trial_gap,
-        precision: 1e-2,
-        time_limit: Some(Duration::from_secs_f64(secs)),
-        threads: 1,
-        initial_controller: initial,
-        belief_flush: 1e-7,
-        prune_lower: false,
-        ..Default::default()
     }
 }
 

@@ -182,6 +182,33 @@ pub fn cliff(
     word_choice(args, rep, "edge", "wall", "cliff")
 }
 
+/// The solver's settings of every light-dark solve: `secs` of budget, the
+/// default trial gap.
+pub fn solve_opts(
+    secs: f64,
+    initial: Option<beliefbus_pomdp::solver::graph::Controller>,
+) -> beliefbus_pomdp::SolveOptions {
+    solve_opts_gap(secs, initial, 0.5)
+}
+
+/// As [`solve_opts`] with the trial gap fraction `trial_gap`.
+pub fn solve_opts_gap(
+    secs: f64,
+    initial: Option<beliefbus_pomdp::solver::graph::Controller>,
+    trial_gap: f64,
+) -> beliefbus_pomdp::SolveOptions {
+    beliefbus_pomdp::SolveOptions {
+        trial_gap_fraction: trial_gap,
+        precision: 1e-2,
+        time_limit: Some(std::time::Duration::from_secs_f64(secs)),
+        threads: 1,
+        initial_controller: initial,
+        belief_flush: 1e-7,
+        prune_lower: false,
+        ..Default::default()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -588,19 +588,11 @@ pub fn run(
         write_plot(path, &rep)?;
         rep.notes.push(format!("plot: {path}"));
         if let Some((truth, lms, tracks)) = &first {
-            let pp = paths_file(path);
+            let pp = super::slam_plot::paths_file(path);
             write_paths(&pp, truth, lms, tracks)?;
             rep.notes
                 .push(format!("paths and maps of data set 0: {pp}"));
         }
     }
     Ok(rep)
-}
-
-/// `a/b.svg` → `a/b-paths.svg`.
-pub fn paths_file(plot: &str) -> String {
-    match plot.strip_suffix(".svg") {
-        Some(stem) => format!("{stem}-paths.svg"),
-        None => format!("{plot}-paths.svg"),
-    }
 }

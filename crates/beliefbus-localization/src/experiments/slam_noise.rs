@@ -96,7 +96,7 @@ mod tests {
 
     #[test]
     fn the_paths_figure_sits_beside_the_error_figure() {
-        use crate::experiments::slam::paths_file;
+        use crate::experiments::slam_plot::paths_file;
         assert_eq!(paths_file("out/slam.svg"), "out/slam-paths.svg");
         assert_eq!(paths_file("slam"), "slam-paths.svg");
     }

@@ -156,3 +156,11 @@ pub fn write_paths(
     }
     svg.write(path)
 }
+
+/// `a/b.svg` → `a/b-paths.svg`.
+pub fn paths_file(plot: &str) -> String {
+    match plot.strip_suffix(".svg") {
+        Some(stem) => format!("{stem}-paths.svg"),
+        None => format!("{plot}-paths.svg"),
+    }
+}
