@@ -175,7 +175,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p(
         "per_run",
         "(none)",
-        "write each data set's error_pct, rms_m and spread_m per method to this CSV (for paired comparisons)",
+        "write each data set's error_pct, rms_m, spread_m, ESS, resampling rate, map size, fallbacks, Newton steps and new landmarks per method to this CSV (for paired comparisons)",
     ),
     p(
         "plot",
@@ -188,6 +188,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p("existence_margin", "1", "a landmark counts as in view only this far (m) inside the field of view's edges"),
     p("move", "off", "'window': after each resampling, Metropolis-Hastings moves of every particle's last move_window poses with its landmarks held (slam::path_move; implicit only, the other methods ignore it); 'off': none"),
     p("interval_prior", super::slam_run::INTERVAL_PRIOR_DEFAULT, super::slam_run::INTERVAL_PRIOR_DOC),
+    p("refine_assoc", super::slam_run::REFINE_ASSOC_DEFAULT, super::slam_run::REFINE_ASSOC_DOC),
     p("move_window", "10", "poses moved per particle by the resample-move (W)"),
     p("move_sweeps", "1", "sweeps over the window per resample-move"),
     p("move_scale", "0.5", "the resample-move's random-walk step relative to the step noise"),
@@ -263,6 +264,8 @@ pub struct Setup {
     /// The particle filters draw each interval's noise at its next step
     /// with returns.
     pub interval_prior: bool,
+    /// `implicit-refine` associates at the conditional mode.
+    pub refine_assoc_mode: bool,
 }
 
 /// Parse the parameters.
@@ -376,6 +379,7 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
         path_move: super::slam_run::parse_move(&ps)?,
         existence,
         interval_prior: super::slam_run::parse_interval_prior(&ps)?,
+        refine_assoc_mode: super::slam_run::parse_refine_assoc(&ps)?,
     })
 }
 
@@ -421,7 +425,7 @@ pub fn run(
             }
         })
         .collect();
-    let mut per_run = String::from("method,samples,run,error_pct,rms_m,spread_m\n");
+    let mut per_run = String::from(super::slam_run::PER_RUN_HEADER);
     let mut first: Option<(Vec<Pose>, Vec<crate::geometry::Point>, Vec<PathMap>)> = None;
     for r in 0..runs as u64 {
         let cp = CarPark::generate(&rec, &s.carpark, &mut stream(seed, r))?;
@@ -436,6 +440,7 @@ pub fn run(
         for (i, &(name, m)) in s.methods.iter().enumerate() {
             let mut f = make_filter(name, m, s.model, s.ess_threshold, s.newton)?;
             f.set_interval_prior(s.interval_prior);
+            f.set_assoc_at_mode(s.refine_assoc_mode);
             f.set_path_move(s.path_move)?;
             f.set_existence(s.existence)?;
             let mut est = vec![Pose::zeros(); cp.steps() + 1];
@@ -462,10 +467,7 @@ pub fn run(
                     map,
                 });
             }
-            per_run.push_str(&format!(
-                "{name},{m},{r},{},{},{}\n",
-                met.error_pct, met.rms_m, met.spread_m
-            ));
+            per_run.push_str(&super::slam_run::per_run_row(name, m, r, &met));
             per[i].push(met);
         }
     }
@@ -483,6 +485,10 @@ pub fn run(
     rep.param(
         "interval_prior",
         if s.interval_prior { "on" } else { "off" },
+    );
+    rep.param(
+        "refine_assoc",
+        if s.refine_assoc_mode { "mode" } else { "draw" },
     );
     rep.param("seed", seed);
     rep.param("data_dir", s.data_dir.display().to_string());

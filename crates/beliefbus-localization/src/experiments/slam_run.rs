@@ -57,6 +57,22 @@ pub fn parse_interval_prior(ps: &Params) -> Result<bool, LocalizationError> {
 }
 
 /// The default of `interval_prior` in `slam` and `slam-victoria-park`.
+/// `refine_assoc`: where `implicit-refine` associates a return with a
+/// landmark ([`crate::slam::SlamFilter::set_assoc_at_mode`]).
+pub fn parse_refine_assoc(ps: &Params) -> Result<bool, LocalizationError> {
+    match ps.raw("refine_assoc").unwrap_or(REFINE_ASSOC_DEFAULT) {
+        "mode" => Ok(true),
+        "draw" => Ok(false),
+        v => Err(LocalizationError::Param {
+            key: "refine_assoc".into(),
+            msg: format!("'{v}': need 'mode' or 'draw'"),
+        }),
+    }
+}
+
+pub const REFINE_ASSOC_DEFAULT: &str = "draw";
+pub const REFINE_ASSOC_DOC: &str = "implicit-refine only: 'mode' associates, gates and reports the map at each landmark's conditional mode given the particle's path with its conditional covariance (what FastSLAM's landmark EKFs hold); 'draw' at the landmark's last sampled value with its covariance marginal over that step's pose";
+
 pub const INTERVAL_PRIOR_DEFAULT: &str = "on";
 
 /// The documentation of `interval_prior`, shared by both experiments.
@@ -198,6 +214,29 @@ pub struct RunMetrics {
     pub ancestors: [f64; 4],
     /// Accepted fraction of the resample-move's proposals (NaN: no move).
     pub move_accept: f64,
+    /// Per particle and return taken in: fallbacks to the motion-model
+    /// proposal, Newton steps, and returns that started a landmark.
+    pub fallback_rate: f64,
+    pub newton_per_return: f64,
+    pub new_rate: f64,
+}
+
+/// The `per_run` CSV's header and one data set's row.
+pub const PER_RUN_HEADER: &str = "method,samples,run,error_pct,rms_m,spread_m,ess_fraction,resample_rate,map_ratio,fallback_rate,newton_per_return,new_rate\n";
+
+pub fn per_run_row(name: &str, m: usize, r: u64, met: &RunMetrics) -> String {
+    format!(
+        "{name},{m},{r},{},{},{},{},{},{},{},{},{}\n",
+        met.error_pct,
+        met.rms_m,
+        met.spread_m,
+        met.ess_fraction,
+        met.resample_rate,
+        met.map_ratio,
+        met.fallback_rate,
+        met.newton_per_return,
+        met.new_rate
+    )
 }
 
 /// The steps at which the ancestor slots 1–3 are labelled (slot 0: the
@@ -245,6 +284,7 @@ pub fn run_one(
     let st = f.stats();
     let map = f.map();
     let anc = |slot| f.distinct_ancestors(slot).map_or(f64::NAN, |a| a as f64);
+    let returns = (st.known + st.new + st.discarded).max(1) as f64;
     Ok((
         RunMetrics {
             map_err_m: map_error(&map, &cp.landmarks),
@@ -257,6 +297,9 @@ pub fn run_one(
             resample_rate: st.resamplings as f64 / st.updates.max(1) as f64,
             spread_m: (spread2 / n).sqrt(),
             ancestors: [anc(0), anc(1), anc(2), anc(3)],
+            fallback_rate: st.fallbacks as f64 / returns,
+            newton_per_return: st.newton_iters as f64 / returns,
+            new_rate: st.new as f64 / returns,
             move_accept: {
                 let (p, a) = f.move_counts();
                 if p == 0 {
@@ -291,6 +334,43 @@ mod tests {
                 assert!(msg.contains("maybe"), "{msg}");
             }
             other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn refine_assoc_parses_mode_and_draw_and_names_the_key_on_bad_input() {
+        let doc = super::super::slam::PARAMS;
+        let kv = |v: &str| vec![("refine_assoc".to_string(), v.to_string())];
+        let none: Vec<(String, String)> = vec![];
+        assert!(!parse_refine_assoc(&Params::new(&none, doc).unwrap()).unwrap());
+        assert!(parse_refine_assoc(&Params::new(&kv("mode"), doc).unwrap()).unwrap());
+        assert!(!parse_refine_assoc(&Params::new(&kv("draw"), doc).unwrap()).unwrap());
+        match parse_refine_assoc(&Params::new(&kv("mean"), doc).unwrap()) {
+            Err(LocalizationError::Param { key, msg }) => {
+                assert_eq!(key, "refine_assoc");
+                assert!(msg.contains("mean"), "{msg}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // Only implicit-refine has the setting.
+        let model = crate::slam::SlamModel {
+            ute: Default::default(),
+            motion: Default::default(),
+            laser: crate::laser::LaserNoise {
+                var_range: 0.01,
+                var_bearing: 1e-4,
+            },
+            assoc: Default::default(),
+            max_range: 15.0,
+        };
+        for (name, has) in [
+            ("implicit-refine", true),
+            ("fastslam2", false),
+            ("implicit", false),
+            ("ekf", false),
+        ] {
+            let mut f = make_filter(name, 4, model, 0.5, NewtonSettings::default()).unwrap();
+            assert_eq!(f.set_assoc_at_mode(true), has, "{name}");
         }
     }
 

@@ -67,6 +67,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p("existence_confirm", "3", "evidence at which a landmark is kept for good"),
     p("existence_margin", "1", "a landmark counts as in view only this far (m) inside the field of view's edges"),
     p("interval_prior", super::slam_run::INTERVAL_PRIOR_DEFAULT, super::slam_run::INTERVAL_PRIOR_DOC),
+    p("refine_assoc", super::slam_run::REFINE_ASSOC_DEFAULT, super::slam_run::REFINE_ASSOC_DOC),
     p("move", "off", "'window': after each resampling, Metropolis-Hastings moves of every particle's last move_window poses with its landmarks held (slam::path_move; implicit only, the other methods ignore it); 'off': none"),
     p("move_window", "10", "poses moved per particle by the resample-move (W)"),
     p("move_sweeps", "1", "sweeps over the window per resample-move"),
@@ -193,6 +194,7 @@ pub fn run(
     })?;
     let path_move = super::slam_run::parse_move(&ps)?;
     let interval_prior = super::slam_run::parse_interval_prior(&ps)?;
+    let refine_assoc_mode = super::slam_run::parse_refine_assoc(&ps)?;
     // The detector's field of view (data README): trees between 1 m and
     // the range cut, centre bearings inside the 2.9° edge bands it rejects.
     let edge = 5.0 * std::f64::consts::PI / 306.0;
@@ -280,6 +282,10 @@ pub fn run(
     rep.param("exclusive", exclusive.name());
     rep.param("move", super::slam_run::move_name(path_move));
     rep.param("interval_prior", if interval_prior { "on" } else { "off" });
+    rep.param(
+        "refine_assoc",
+        if refine_assoc_mode { "mode" } else { "draw" },
+    );
     rep.param("existence", super::slam_run::existence_name(existence));
     rep.lead_columns(&["samples", "rms_m", "p95_m", "landmarks", "time_ms"]);
     let (dr_rms, dr_p95) = rms_p95(&gps_errors(&times, &dr, &gps));
@@ -309,6 +315,7 @@ pub fn run(
                 f.set_shared_association(shared);
                 f.set_exclusion(exclusive);
                 f.set_interval_prior(interval_prior);
+                f.set_assoc_at_mode(refine_assoc_mode);
                 f.set_path_move(path_move)?;
                 f.set_existence(existence)?;
                 f.reset(&start);

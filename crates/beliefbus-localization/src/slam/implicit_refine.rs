@@ -31,7 +31,7 @@ use super::assoc::{inverse, near, Association, Forced, RangeBearing};
 use super::implicit::sample_given_pose;
 use super::joint::JointObjective;
 use super::particles::SlamParticles;
-use super::refine::{backward_term, Objective};
+use super::refine::{backward_at, backward_term, Objective};
 use super::refined_map::{Past, RefinedLandmark};
 use super::scan_assoc::ScanAssoc;
 use super::step_setup::{begin_step, Begin, StepSetup};
@@ -119,6 +119,12 @@ pub struct ImplicitRefineSlam {
     zs: Vec<RangeBearing>,
     xi_t: Vec<Vector2<f64>>,
     th_draw: Vec<Point>,
+    /// Associate, gate and report the map at each landmark's conditional
+    /// mode given the particle's path, with its conditional covariance (as
+    /// FastSLAM's landmark EKFs do); `false` (the default): at the last
+    /// draw of θ with its covariance marginal over that step's pose. The
+    /// mode was measured and loses on the synthetic car park (docs/slam.md).
+    pub assoc_at_mode: bool,
 }
 
 impl ImplicitRefineSlam {
@@ -145,6 +151,7 @@ impl ImplicitRefineSlam {
             zs: Vec::with_capacity(32),
             xi_t: Vec::with_capacity(32),
             th_draw: Vec::with_capacity(32),
+            assoc_at_mode: false,
         })
     }
 }
@@ -168,8 +175,11 @@ impl SlamFilter for ImplicitRefineSlam {
         obs: &[RangeBearing],
         rng: &mut SimRng,
     ) -> Result<Pose, LocalizationError> {
+        let at_mode = self.assoc_at_mode;
         let parts = particle_filter_parts!(self);
-        let setup = match begin_step(parts, u, dt, obs, rng, |l: &RefinedLandmark| (l.m, l.cov))? {
+        let setup = match begin_step(parts, u, dt, obs, rng, |l: &RefinedLandmark| {
+            l.assoc_view(at_mode)
+        })? {
             Begin::Predicted(estimate) => return Ok(estimate),
             Begin::Update(c) => c,
         };
@@ -196,9 +206,10 @@ impl SlamFilter for ImplicitRefineSlam {
             for (i, z) in obs.iter().enumerate() {
                 let (zp, _, _) = inverse(&f, z);
                 for (k, lm) in map.iter().enumerate() {
-                    if near(lm.m, zp, &model.assoc) {
-                        let (nu, hx, hm) = super::assoc::innovation(&f, lm.m, z);
-                        let s = hx * sx * hx.transpose() + hm * lm.cov * hm.transpose() + r;
+                    let (m, cov) = lm.assoc_view(at_mode);
+                    if near(m, zp, &model.assoc) {
+                        let (nu, hx, hm) = super::assoc::innovation(&f, m, z);
+                        let s = hx * sx * hx.transpose() + hm * cov * hm.transpose() + r;
                         self.scan.offer(i, k, &nu, &s, &model.assoc);
                     }
                 }
@@ -264,8 +275,12 @@ impl SlamFilter for ImplicitRefineSlam {
                                     laser: model.laser,
                                 };
                                 let old = SVector::<f64, 2>::new(lm.m[0], lm.m[1]);
-                                match backward_term(&past, &old, it, tol) {
-                                    Some((b, _)) => back += b,
+                                let term = match &lm.past_min {
+                                    Some(mn) => backward_at(&past, &old, mn),
+                                    None => backward_term(&past, &old, it, tol).map(|t| t.0),
+                                };
+                                match term {
+                                    Some(b) => back += b,
                                     None => back = f64::NAN,
                                 }
                             }
@@ -311,11 +326,12 @@ impl SlamFilter for ImplicitRefineSlam {
                         for z in zs {
                             lm.add_sighting(&xn, z, &rinv);
                         }
+                        lm.refresh_mode(model.laser, it, tol);
                         map.set(k, lm);
                     }
                     _ => {
                         let z0 = zs[0];
-                        let lm = if drawn {
+                        let mut lm = if drawn {
                             let cov = self.arrow.cov(b).ok_or_else(|| bad("feature covariance"))?;
                             RefinedLandmark::new(self.th_draw[b], cov, &xn, &z0)
                         } else {
@@ -324,6 +340,7 @@ impl SlamFilter for ImplicitRefineSlam {
                             lw += inc - half_logdet_r + log_new;
                             RefinedLandmark::new(th.m, th.cov, &xn, &z0)
                         };
+                        lm.refresh_mode(model.laser, it, tol);
                         map.push(lm);
                     }
                 }
@@ -334,7 +351,9 @@ impl SlamFilter for ImplicitRefineSlam {
             if let Some(c) = &self.existence {
                 self.stats.removed +=
                     self.set
-                        .apply_existence(c, j, before, &self.assoc, |l: &RefinedLandmark| l.m);
+                        .apply_existence(c, j, before, &self.assoc, |l: &RefinedLandmark| {
+                            l.assoc_view(at_mode).0
+                        });
             }
         }
         self.forced.clear();
@@ -342,8 +361,17 @@ impl SlamFilter for ImplicitRefineSlam {
         Ok(self.set.estimate())
     }
 
+    fn set_assoc_at_mode(&mut self, on: bool) -> bool {
+        self.assoc_at_mode = on;
+        true
+    }
+
     fn map(&self) -> Vec<Point> {
-        self.set.maps[self.set.best()].iter().map(|l| l.m).collect()
+        let at_mode = self.assoc_at_mode;
+        self.set.maps[self.set.best()]
+            .iter()
+            .map(|l| l.assoc_view(at_mode).0)
+            .collect()
     }
 
     particle_set_diagnostics!();

@@ -21,7 +21,10 @@ use super::assoc::{innovation, RangeBearing};
 use super::fastslam::{FastSlam, Landmark, Version};
 use super::implicit::{ImplicitSlam, SampledLandmark};
 use super::implicit_rb::ImplicitRbSlam;
+use super::implicit_refine::ImplicitRefineSlam;
 use super::particles::SlamParticles;
+use super::refine::{newton, Objective};
+use super::refined_map::{Past, RefinedLandmark};
 use super::step_setup::StepSetup;
 use super::{SlamFilter, SlamModel};
 use crate::carpark::normal3;
@@ -31,6 +34,8 @@ use crate::mcl::newton::NewtonSettings;
 use crate::vehicle::{Control, MotionNoise};
 use beliefbus_core::rng::stream;
 use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
+use rand::RngExt;
+use rand_distr::StandardNormal;
 
 /// Table 7's intensities × 0.05 (heading σ ≈ 0.03 rad per step, so the
 /// interval's distribution is close to Gaussian) and a laser of the order
@@ -232,6 +237,19 @@ fn check_interval_weights<F: SlamFilter>(
     w: impl Fn(&F) -> Vec<f64>,
     n: usize,
 ) {
+    check_interval_weights_with(name, f, push, w, n, predictive);
+}
+
+/// [`check_interval_weights`] with the known groups' predictive likelihood
+/// given by `pred(model, prior, θ, z)` (log and its standard error).
+fn check_interval_weights_with<F: SlamFilter>(
+    name: &str,
+    f: &mut F,
+    push: impl Fn(&mut F, usize, [f64; 2]),
+    w: impl Fn(&F) -> Vec<f64>,
+    n: usize,
+    pred: impl Fn(&SlamModel, (Pose, Matrix3<f64>), [f64; 2], &RangeBearing) -> (f64, f64),
+) {
     let model = model();
     let mut x = start();
     for _ in 0..=K {
@@ -261,8 +279,8 @@ fn check_interval_weights<F: SlamFilter>(
     let (gc, sc) = log_mean_exp(&lw[n..2 * n]);
     let (gn, sn) = log_mean_exp(&lw[2 * n..]);
     let prior = interval_prior(&model);
-    let (ea, se_a) = predictive(&model, prior, th_a, &z);
-    let (ec, se_c) = predictive(&model, prior, th_c, &z);
+    let (ea, se_a) = pred(&model, prior, th_a, &z);
+    let (ec, se_c) = pred(&model, prior, th_c, &z);
     let en = z.range.ln() + model.log_new_density();
     let check = |what: &str, got: f64, want: f64, se: f64| {
         assert!(
@@ -292,7 +310,7 @@ fn check_interval_weights<F: SlamFilter>(
     }
     let t = frame_rotation(before[2]);
     let one = t * noise.chol * noise.chol.transpose() * t.transpose();
-    let (ea1, _) = predictive(&model, (prior.0, one), th_a, &z);
+    let (ea1, _) = pred(&model, (prior.0, one), th_a, &z);
     assert!((ea1 - ea).abs() > 0.2, "one step {ea1} vs interval {ea}");
 }
 
@@ -348,5 +366,159 @@ fn implicit_rb_weights_after_an_interval_are_its_predictive_likelihoods() {
         },
         |f| f.set.w.clone(),
         n,
+    );
+}
+
+/// A landmark at θ seen before from six poses around it with exact returns:
+/// F_past(θ') = Σ_i ½‖h(X_i, θ) − h(X_i, θ')‖²_{Σ₂⁻¹}, minimal (zero) at θ,
+/// its conditional spread a few cm with the test's laser.
+fn refined_past(model: &SlamModel, th: [f64; 2]) -> RefinedLandmark {
+    let r = model.r();
+    let rinv = Matrix2::new(1.0 / r[(0, 0)], 0.0, 0.0, 1.0 / r[(1, 1)]);
+    let pose = |i: usize| {
+        let a = -1.0 + 0.45 * i as f64;
+        let d = 5.0 + 0.6 * i as f64;
+        // Facing the landmark, 0.2 rad off.
+        Pose::new(
+            th[0] + d * a.cos(),
+            th[1] + d * a.sin(),
+            a + std::f64::consts::PI + 0.2,
+        )
+    };
+    let exact = |x: &Pose| {
+        let (range, bearing) = predict(x, th);
+        RangeBearing { range, bearing }
+    };
+    let x0 = pose(0);
+    let mut lm = RefinedLandmark::new(th, Matrix2::zeros(), &x0, &exact(&x0));
+    for i in 1..6 {
+        let x = pose(i);
+        lm.add_sighting(&x, &exact(&x), &rinv);
+    }
+    lm
+}
+
+/// Draws of θ from p(θ | past) ∝ e^{−F_past(θ)} (flat prior) by importance
+/// sampling from the Laplace approximation widened ×2: the draws, their
+/// log weights.
+fn past_draws(
+    model: &SlamModel,
+    lm: &RefinedLandmark,
+    n: usize,
+    seed: u64,
+) -> Vec<([f64; 2], f64)> {
+    let past = Past {
+        lm,
+        laser: model.laser,
+    };
+    let m = newton(&past, Vector2::new(lm.m[0], lm.m[1]), 50, 1e-12).unwrap();
+    let mut rng = stream(seed, 0);
+    (0..n)
+        .map(|_| {
+            let e = Vector2::new(rng.sample(StandardNormal), rng.sample(StandardNormal));
+            let th = m.mu + 2.0 * m.l.tr_solve_lower_triangular(&e).unwrap();
+            ([th[0], th[1]], -past.value(&th) + 0.5 * e.dot(&e))
+        })
+        .collect()
+}
+
+/// Brute force over (x, θ): log ∫∫ N(x; f, Σ) p(θ | past) N(z; h(x, θ), Σ₂)
+/// dx dθ, self-normalised importance sampling over θ with 200 000 draws
+/// (delta-method standard error of the ratio).
+fn predictive_refined(
+    model: &SlamModel,
+    (f, cov): (Pose, Matrix3<f64>),
+    th: [f64; 2],
+    z: &RangeBearing,
+) -> (f64, f64) {
+    let lm = refined_past(model, th);
+    let draws = past_draws(model, &lm, 200_000, 26);
+    let c = cov.cholesky().unwrap().l();
+    let r = model.r();
+    let rinv = Matrix2::new(1.0 / r[(0, 0)], 0.0, 0.0, 1.0 / r[(1, 1)]);
+    let norm = -(2.0 * std::f64::consts::PI).ln() - 0.5 * (r[(0, 0)] * r[(1, 1)]).ln();
+    let mut rng = stream(27, 0);
+    let wmax = draws.iter().map(|d| d.1).fold(f64::NEG_INFINITY, f64::max);
+    let (mut a, mut b) = (
+        Vec::with_capacity(draws.len()),
+        Vec::with_capacity(draws.len()),
+    );
+    for (t, lw) in &draws {
+        let x = f + c * normal3(&mut rng);
+        let (nu, _, _) = innovation(&x, *t, z);
+        let w = (lw - wmax).exp();
+        a.push(w * (norm - 0.5 * nu.dot(&(rinv * nu))).exp());
+        b.push(w);
+    }
+    let n = a.len() as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    // log(ā/b̄): influence a_i/ā − b_i/b̄.
+    let var = a
+        .iter()
+        .zip(&b)
+        .map(|(ai, bi)| (ai / ma - bi / mb).powi(2))
+        .sum::<f64>()
+        / (n - 1.0);
+    ((ma / mb).ln(), (var / n).sqrt())
+}
+
+/// `implicit-refine` after an interval: the known groups' landmarks carry
+/// earlier sightings and their current values are draws from p(θ | past),
+/// so the step's weight (joint draw of pose and θ, backward kernel for the
+/// old θ) must average to the predictive likelihood with θ integrated out;
+/// the new group goes through the same arrow as a 5-D joint F^j with the
+/// interval's prior. Dropping the backward-kernel term or keeping the
+/// one-step prior breaks the ratios.
+#[test]
+fn implicit_refine_weights_after_an_interval_are_its_predictive_likelihoods() {
+    let n = 3000;
+    let model = model();
+    let mut f = ImplicitRefineSlam::new(model, 3 * n, 0.0, NewtonSettings::default()).unwrap();
+    let pools: Vec<(RefinedLandmark, Vec<[f64; 2]>)> = {
+        // θ_A and θ_C as check_interval_weights places them.
+        let mut x = start();
+        for _ in 0..=K {
+            x = model.step_noise(U, DT).unwrap().0.predict_mean(&x, U);
+        }
+        let th_a = [x[0] + 6.0, x[1] + 5.0];
+        let th_c = [th_a[0] + 0.3, th_a[1] + 0.2];
+        [(th_a, 28), (th_c, 29)]
+            .iter()
+            .map(|&(th, seed)| {
+                let lm = refined_past(&model, th);
+                // Sampling-importance-resampling of n exact draws.
+                let pool = past_draws(&model, &lm, 100_000, seed);
+                let mx = pool.iter().map(|d| d.1).fold(f64::NEG_INFINITY, f64::max);
+                let cum: Vec<f64> = pool
+                    .iter()
+                    .scan(0.0, |s, d| {
+                        *s += (d.1 - mx).exp();
+                        Some(*s)
+                    })
+                    .collect();
+                let total = *cum.last().unwrap();
+                let mut rng = stream(seed, 1);
+                let picks = (0..n)
+                    .map(|_| {
+                        let u: f64 = rng.random::<f64>() * total;
+                        pool[cum.partition_point(|&c| c < u).min(pool.len() - 1)].0
+                    })
+                    .collect();
+                (lm, picks)
+            })
+            .collect()
+    };
+    check_interval_weights_with(
+        "implicit-refine",
+        &mut f,
+        |f, j, _th| {
+            let (lm, picks) = &pools[j / n];
+            let mut lm = *lm;
+            lm.m = picks[j % n];
+            f.set.maps[j].push(lm);
+        },
+        |f| f.set.w.clone(),
+        n,
+        predictive_refined,
     );
 }

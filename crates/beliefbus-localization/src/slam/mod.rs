@@ -262,6 +262,13 @@ pub trait SlamFilter {
     fn set_interval_prior(&mut self, _on: bool) -> bool {
         false
     }
+    /// `implicit-refine` only: associate at each landmark's conditional
+    /// mode given the particle's path (`true`) or at its last draw
+    /// (`false`, the default) ([`implicit_refine::ImplicitRefineSlam::assoc_at_mode`]).
+    /// Whether the filter has the setting.
+    fn set_assoc_at_mode(&mut self, _on: bool) -> bool {
+        false
+    }
     /// Associate a scan's returns jointly, one landmark per return at most
     /// ([`scan_assoc`]), instead of each return on its own.
     fn set_exclusion(&mut self, _e: scan_assoc::Exclusion) {}

@@ -36,7 +36,7 @@ use nalgebra::{SMatrix, SVector};
 /// A Newton minimum: μ, F(μ), the lower Cholesky factor L of the Hessian at
 /// μ (exact, or Gauss–Newton where the exact one is not positive definite),
 /// log det L and the steps taken.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Minimum<const N: usize> {
     pub mu: SVector<f64, N>,
     pub phi: f64,
@@ -154,9 +154,19 @@ pub fn backward_term<const K: usize>(
     tol: f64,
 ) -> Option<(f64, Minimum<K>)> {
     let m = newton(past, *old, max_iter, tol)?;
+    backward_at(past, old, &m).map(|t| (t, m))
+}
+
+/// The backward-kernel term with (μ_p, L_p) already found (by Newton on
+/// the same F_past from the same θ_old).
+pub fn backward_at<const K: usize>(
+    past: &impl Objective<K>,
+    old: &SVector<f64, K>,
+    m: &Minimum<K>,
+) -> Option<f64> {
     let d = m.l.transpose() * (old - m.mu);
     let t = past.value(old) - 0.5 * d.dot(&d) + m.log_det_l;
-    t.is_finite().then_some((t, m))
+    t.is_finite().then_some(t)
 }
 
 /// The θ-block (rows and columns `at..at + 2`) of H⁻¹ = L⁻ᵀ L⁻¹.

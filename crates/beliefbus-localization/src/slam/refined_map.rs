@@ -10,7 +10,7 @@
 //! σ²/r ≈ 2·10⁻⁴ m at r = 15 m, far below any landmark's spread.
 
 use super::assoc::{innovation, RangeBearing};
-use super::refine::Objective;
+use super::refine::{newton, Minimum, Objective};
 use crate::geometry::{Point, Pose};
 use crate::laser::{add_term, Curvature, LaserNoise, Observation};
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
@@ -22,8 +22,17 @@ pub const TERMS: usize = 8;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RefinedLandmark {
     pub m: Point,
-    /// θ-block of the last draw's H⁻¹ (for the shared association rule).
+    /// θ-block of the last draw's H⁻¹: θ's spread marginal over the pose of
+    /// that step.
     pub cov: Matrix2<f64>,
+    /// θ's conditional given the particle's path: the minimiser of F_past
+    /// and (∇²F_past)⁻¹ there ([`RefinedLandmark::refresh_mode`]); what a
+    /// FastSLAM particle's landmark EKF holds as mean and covariance.
+    pub mode: Point,
+    pub mode_cov: Matrix2<f64>,
+    /// The Newton minimum of F_past from θ = m, kept for the backward
+    /// kernel of the next sighting (the same minimum it would find).
+    pub past_min: Option<Minimum<2>>,
     poses: [Pose; TERMS],
     zs: [RangeBearing; TERMS],
     len: usize,
@@ -39,6 +48,9 @@ impl RefinedLandmark {
         let mut s = Self {
             m,
             cov,
+            mode: m,
+            mode_cov: cov,
+            past_min: None,
             poses: [Pose::zeros(); TERMS],
             zs: [RangeBearing {
                 range: 0.0,
@@ -76,6 +88,38 @@ impl RefinedLandmark {
         self.poses[self.len] = *x;
         self.zs[self.len] = *z;
         self.len += 1;
+    }
+
+    /// Where association looks for the landmark and with what covariance:
+    /// the conditional mode given the path, or the last draw.
+    pub fn assoc_view(&self, at_mode: bool) -> (Point, Matrix2<f64>) {
+        if at_mode {
+            (self.mode, self.mode_cov)
+        } else {
+            (self.m, self.cov)
+        }
+    }
+
+    /// Find θ's conditional mode given the path (Newton on F_past from the
+    /// current draw m) and keep it with its covariance; without a minimum
+    /// (Newton failed) the draw and its marginal covariance stand in.
+    pub fn refresh_mode(&mut self, laser: LaserNoise, max_iter: usize, tol: f64) {
+        let start = SVector::<f64, 2>::new(self.m[0], self.m[1]);
+        let found = newton(&Past { lm: self, laser }, start, max_iter, tol);
+        self.past_min = found;
+        match found.and_then(|mn| {
+            let li = mn.l.try_inverse()?;
+            Some((mn.mu, li.transpose() * li))
+        }) {
+            Some((mu, cov)) => {
+                self.mode = [mu[0], mu[1]];
+                self.mode_cov = cov;
+            }
+            None => {
+                self.mode = self.m;
+                self.mode_cov = self.cov;
+            }
+        }
     }
 
     /// F_past(θ) with its gradient and Hessian in θ, added to g and h.
@@ -187,5 +231,87 @@ mod tests {
                 assert!((col[i] - h[(i, k)]).abs() < 1e-5 * h.norm(), "({i},{k})");
             }
         }
+    }
+
+    /// The conditional mode given the path, against an objective written
+    /// out independently (the sightings' range-bearing costs summed by
+    /// `term_cost`; the fold is off with ≤ TERMS sightings): its central
+    /// difference gradient vanishes at the mode, and the inverse of its
+    /// finite-difference Hessian is the stored covariance. The minimum
+    /// kept for the backward kernel is the one Newton finds from the draw,
+    /// so the next sighting's backward term is unchanged.
+    #[test]
+    fn refreshed_mode_is_the_minimiser_of_the_past_sightings_with_their_covariance() {
+        use crate::laser::term_cost;
+        use crate::slam::refine::{backward_at, backward_term};
+        let laser = LaserNoise {
+            var_range: 0.01,
+            var_bearing: 1e-4,
+        };
+        let rinv = Matrix2::new(100.0, 0.0, 0.0, 1e4);
+        let m = [5.0, 7.0];
+        let poses: Vec<Pose> = (0..6)
+            .map(|k| Pose::new(0.7 * k as f64, -0.3 * k as f64, 0.2 + 0.1 * k as f64))
+            .collect();
+        let errs = [
+            (0.05, 0.004),
+            (-0.08, -0.01),
+            (0.02, 0.012),
+            (0.11, -0.006),
+            (-0.03, 0.0),
+            (0.06, 0.009),
+        ];
+        let zs: Vec<RangeBearing> = poses.iter().zip(errs).map(|(x, e)| rb(x, m, e)).collect();
+        // The last draw sits 20 cm off.
+        let mut lm = RefinedLandmark::new([5.2, 6.85], Matrix2::identity(), &poses[0], &zs[0]);
+        for (x, z) in poses.iter().zip(&zs).skip(1) {
+            lm.add_sighting(x, z, &rinv);
+        }
+        lm.refresh_mode(laser, 50, 1e-14);
+        let f = |t: [f64; 2]| -> f64 {
+            poses
+                .iter()
+                .zip(&zs)
+                .map(|(x, z)| {
+                    let o = Observation {
+                        range: z.range,
+                        bearing: z.bearing,
+                        landmark: 0,
+                    };
+                    term_cost(x, t, &o, &laser)
+                })
+                .sum()
+        };
+        let e = 1e-4;
+        let at = |d0: f64, d1: f64| f([lm.mode[0] + d0, lm.mode[1] + d1]);
+        let g = [
+            (at(e, 0.0) - at(-e, 0.0)) / (2.0 * e),
+            (at(0.0, e) - at(0.0, -e)) / (2.0 * e),
+        ];
+        let h00 = (at(e, 0.0) - 2.0 * at(0.0, 0.0) + at(-e, 0.0)) / (e * e);
+        let h11 = (at(0.0, e) - 2.0 * at(0.0, 0.0) + at(0.0, -e)) / (e * e);
+        let h01 = (at(e, e) - at(e, -e) - at(-e, e) + at(-e, -e)) / (4.0 * e * e);
+        let h = Matrix2::new(h00, h01, h01, h11);
+        // Curvature ~ 1e3 per m²: a gradient of 1e-3 is a micrometre off.
+        assert!(g[0].abs() < 1e-3 && g[1].abs() < 1e-3, "gradient {g:?}");
+        let cov = h.try_inverse().unwrap();
+        assert!(
+            (cov - lm.mode_cov).norm() < 1e-4 * cov.norm(),
+            "{cov:?} vs {:?}",
+            lm.mode_cov
+        );
+        // Not the draw: the mode moved from it by more than its spread.
+        let d = Vector2::new(lm.mode[0] - lm.m[0], lm.mode[1] - lm.m[1]);
+        assert!(d.dot(&(cov.try_inverse().unwrap() * d)) > 25.0);
+        assert_eq!(lm.assoc_view(true), (lm.mode, lm.mode_cov));
+        assert_eq!(lm.assoc_view(false), (lm.m, lm.cov));
+        // The kept minimum gives the backward term Newton would give.
+        let past = Past { lm: &lm, laser };
+        let old = SVector::<f64, 2>::new(lm.m[0], lm.m[1]);
+        let (t, _) = backward_term(&past, &old, 50, 1e-14).unwrap();
+        assert_eq!(
+            backward_at(&past, &old, lm.past_min.as_ref().unwrap()),
+            Some(t)
+        );
     }
 }
