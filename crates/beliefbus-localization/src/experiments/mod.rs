@@ -7,6 +7,7 @@ pub mod params;
 pub mod slam;
 pub mod slam_acceptance;
 pub mod slam_noise;
+pub mod slam_paper;
 pub mod slam_plot;
 pub mod slam_run;
 pub mod slam_svg;
