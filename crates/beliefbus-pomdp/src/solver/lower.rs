@@ -40,21 +40,15 @@ pub struct LowerBound {
 /// Vectors scored together by [`LowerBound::best`] (a stack buffer).
 const BEST_CHUNK: usize = 64;
 
-impl LowerBound {
-    /// Blind-policy vectors, iterated until the change is below `tol`.
-    pub fn blind(p: &Pomdp, tol: f64, max_iter: usize) -> Self {
-        let (lo, _) = p.reward_range();
-        let g = p.discount;
-        let n = p.n_states();
-        let mut lb = LowerBound {
-            vectors: Vec::new(),
-            actions: Vec::new(),
-            nodes: Vec::new(),
-            graph: PlanGraph::new(p.n_obs()),
-            by_state: Vec::new(),
-            cap: 0,
-        };
-        for a in 0..p.n_actions() {
+/// The value of repeating each action for ever, `α_a = R_a + γ T_a α_a`,
+/// iterated from `min R/(1−γ)` until the change is below `tol`: every
+/// iterate is below the fixed point, so each is a lower bound.
+pub fn blind_vectors(p: &Pomdp, tol: f64, max_iter: usize) -> Vec<Vec<f64>> {
+    let (lo, _) = p.reward_range();
+    let g = p.discount;
+    let n = p.n_states();
+    (0..p.n_actions())
+        .map(|a| {
             let mut v = vec![lo / (1.0 - g); n];
             let mut next = vec![0.0; n];
             for _ in 0..max_iter {
@@ -74,8 +68,30 @@ impl LowerBound {
                     break;
                 }
             }
+            v
+        })
+        .collect()
+}
+
+impl LowerBound {
+    /// Blind-policy vectors, iterated until the change is below `tol`.
+    pub fn blind(p: &Pomdp, tol: f64, max_iter: usize) -> Self {
+        Self::from_blind(p, &blind_vectors(p, tol, max_iter))
+    }
+
+    /// Γ holding `blind[a]` as the value of repeating action a.
+    pub fn from_blind(p: &Pomdp, blind: &[Vec<f64>]) -> Self {
+        let mut lb = LowerBound {
+            vectors: Vec::new(),
+            actions: Vec::new(),
+            nodes: Vec::new(),
+            graph: PlanGraph::new(p.n_obs()),
+            by_state: Vec::new(),
+            cap: 0,
+        };
+        for (a, v) in blind.iter().enumerate() {
             let node = lb.graph.push_loop(a);
-            lb.add(v, a, node);
+            lb.add(v.clone(), a, node);
         }
         lb
     }

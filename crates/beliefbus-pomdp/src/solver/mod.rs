@@ -17,7 +17,8 @@
 //!   fixed ε sends every trial ~log(gap/ε)/log(1/γ) steps deep (≈110 on
 //!   Hallway), where backups barely move b₀; short trials tighten b₀ faster.
 //!
-//! Lower bound: α-vectors from blind policies, pruned by pointwise dominance
+//! Lower bound: α-vectors from blind policies and from open-loop plans
+//! guided by the MDP's Q-values ([`heuristic`]), pruned by pointwise dominance
 //! and by the sampled beliefs; every vector's plan is recorded ([`graph`]),
 //! so a solution can be carried to another model as a controller and
 //! evaluated there exactly; at the end V̲(b₀) is raised to the exact value
@@ -26,6 +27,7 @@
 //! matrices are sparse throughout.
 
 pub mod graph;
+pub mod heuristic;
 pub mod lower;
 pub mod upper;
 
@@ -83,6 +85,9 @@ pub struct SolveOptions {
     /// attains V̲ (seen on the light-dark chains: it stays in the light
     /// for ever). `false` keeps every non-dominated vector.
     pub prune_lower: bool,
+    /// Steps of the open-loop plans added to the initial lower bound
+    /// ([`heuristic`]; 0: blind policies only).
+    pub open_loop_horizon: usize,
 }
 
 impl Default for SolveOptions {
@@ -97,6 +102,7 @@ impl Default for SolveOptions {
             initial_controller: None,
             belief_flush: 0.0,
             prune_lower: true,
+            open_loop_horizon: 64,
         }
     }
 }
@@ -196,11 +202,26 @@ pub fn solve(
     let g = p.discount;
     let eps = opts.precision;
     let tol = eps * (1.0 - g) * 1e-2;
-    let mut lb = LowerBound::blind(p, tol, 100_000);
+    let blind = lower::blind_vectors(p, tol, 100_000);
+    let mut lb = LowerBound::from_blind(p, &blind);
     // FIB may take at most a quarter of the budget (it is O(|A|²) per
     // state and observation; stopping early keeps it an upper bound).
     let fib_deadline = opts.time_limit.map(|l| t0 + l / 4);
-    let mut ub = UpperBound::new(p, upper::fib_until(p, tol, 100_000, fib_deadline));
+    let q_mdp = upper::mdp_q(p, tol, 100_000, fib_deadline);
+    if opts.open_loop_horizon > 0 {
+        // At most a twentieth of the budget: the plans found by then are
+        // bounds already.
+        let deadline = opts.time_limit.map(|l| Instant::now() + l / 20);
+        for plan in heuristic::open_loop_plans(p, &q_mdp, &blind, opts.open_loop_horizon, deadline)
+        {
+            let mut node = lb.graph.push_loop(plan.final_action);
+            for &a in plan.prefix.iter().rev() {
+                node = lb.graph.push(a, &vec![node; p.n_obs()]);
+            }
+            lb.add(plan.alpha, plan.prefix[0], node);
+        }
+    }
+    let mut ub = UpperBound::new(p, upper::fib_from(p, q_mdp, tol, 100_000, fib_deadline));
     // A plan's value at a corner e_s is at most V*(e_s) ≤ the FIB corner
     // value: a supplied vector above it anywhere is no plan's value, and
     // trusting it would let the solver stop on a false bound.
