@@ -138,6 +138,7 @@ fn walking_to_the_goal_and_declaring_is_found_from_every_state() {
     let opts = SolveOptions {
         threads: 1,
         precision: 1e-6,
+        open_loop_horizon: 20,
         ..Default::default()
     };
     let mut first = None;
@@ -146,7 +147,12 @@ fn walking_to_the_goal_and_declaring_is_found_from_every_state() {
     })
     .expect("solves");
     let want = 10.0 * gamma.powi(g as i32);
-    assert!((first.expect("a report") - want).abs() < 1e-9);
+    let got = first.expect("a report");
+    // The blind leaf is iterated to the solver's tolerance (1e-9 here).
+    assert!(
+        got <= want + 1e-9 && got >= want - 1e-7,
+        "first V̲(b₀) {got}, want {want}"
+    );
     assert!(sol.lower <= want + 1e-9 && sol.upper >= want - 1e-9);
     // Without the plans the first report is the blind bound (≤ 0 here).
     let blind_only = SolveOptions {

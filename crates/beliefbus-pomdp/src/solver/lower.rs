@@ -232,6 +232,19 @@ impl LowerBound {
     /// vector's); removes the vectors it dominates (redirecting their
     /// nodes to `node`). Returns whether it was added.
     pub fn add(&mut self, alpha: Vec<f64>, action: usize, node: u32) -> bool {
+        self.add_protecting(alpha, action, node, &std::collections::HashSet::new())
+    }
+
+    /// [`LowerBound::add`], except that the dominated vectors whose nodes
+    /// (after redirects) are in `protect` leave Γ without their nodes being
+    /// redirected: a controller certified as it stands keeps its plans.
+    pub fn add_protecting(
+        &mut self,
+        alpha: Vec<f64>,
+        action: usize,
+        node: u32,
+        protect: &std::collections::HashSet<u32>,
+    ) -> bool {
         if let Some(k) = self.dominating(&alpha) {
             self.graph.replace(node, self.nodes[k]);
             return false;
@@ -240,7 +253,9 @@ impl LowerBound {
         while k < self.vectors.len() {
             if alpha.iter().zip(&self.vectors[k]).all(|(x, y)| x >= y) {
                 let old = self.remove(k);
-                self.graph.replace(old, node);
+                if !protect.contains(&self.graph.resolve(old)) {
+                    self.graph.replace(old, node);
+                }
             } else {
                 k += 1;
             }
