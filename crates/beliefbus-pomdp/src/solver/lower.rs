@@ -40,21 +40,15 @@ pub struct LowerBound {
 /// Vectors scored together by [`LowerBound::best`] (a stack buffer).
 const BEST_CHUNK: usize = 64;
 
-impl LowerBound {
-    /// Blind-policy vectors, iterated until the change is below `tol`.
-    pub fn blind(p: &Pomdp, tol: f64, max_iter: usize) -> Self {
-        let (lo, _) = p.reward_range();
-        let g = p.discount;
-        let n = p.n_states();
-        let mut lb = LowerBound {
-            vectors: Vec::new(),
-            actions: Vec::new(),
-            nodes: Vec::new(),
-            graph: PlanGraph::new(p.n_obs()),
-            by_state: Vec::new(),
-            cap: 0,
-        };
-        for a in 0..p.n_actions() {
+/// The value of repeating each action for ever, `α_a = R_a + γ T_a α_a`,
+/// iterated from `min R/(1−γ)` until the change is below `tol`: every
+/// iterate is below the fixed point, so each is a lower bound.
+pub fn blind_vectors(p: &Pomdp, tol: f64, max_iter: usize) -> Vec<Vec<f64>> {
+    let (lo, _) = p.reward_range();
+    let g = p.discount;
+    let n = p.n_states();
+    (0..p.n_actions())
+        .map(|a| {
             let mut v = vec![lo / (1.0 - g); n];
             let mut next = vec![0.0; n];
             for _ in 0..max_iter {
@@ -74,8 +68,30 @@ impl LowerBound {
                     break;
                 }
             }
+            v
+        })
+        .collect()
+}
+
+impl LowerBound {
+    /// Blind-policy vectors, iterated until the change is below `tol`.
+    pub fn blind(p: &Pomdp, tol: f64, max_iter: usize) -> Self {
+        Self::from_blind(p, &blind_vectors(p, tol, max_iter))
+    }
+
+    /// Γ holding `blind[a]` as the value of repeating action a.
+    pub fn from_blind(p: &Pomdp, blind: &[Vec<f64>]) -> Self {
+        let mut lb = LowerBound {
+            vectors: Vec::new(),
+            actions: Vec::new(),
+            nodes: Vec::new(),
+            graph: PlanGraph::new(p.n_obs()),
+            by_state: Vec::new(),
+            cap: 0,
+        };
+        for (a, v) in blind.iter().enumerate() {
             let node = lb.graph.push_loop(a);
-            lb.add(v, a, node);
+            lb.add(v.clone(), a, node);
         }
         lb
     }
@@ -216,6 +232,19 @@ impl LowerBound {
     /// vector's); removes the vectors it dominates (redirecting their
     /// nodes to `node`). Returns whether it was added.
     pub fn add(&mut self, alpha: Vec<f64>, action: usize, node: u32) -> bool {
+        self.add_protecting(alpha, action, node, &std::collections::HashSet::new())
+    }
+
+    /// [`LowerBound::add`], except that the dominated vectors whose nodes
+    /// (after redirects) are in `protect` leave Γ without their nodes being
+    /// redirected: a controller certified as it stands keeps its plans.
+    pub fn add_protecting(
+        &mut self,
+        alpha: Vec<f64>,
+        action: usize,
+        node: u32,
+        protect: &std::collections::HashSet<u32>,
+    ) -> bool {
         if let Some(k) = self.dominating(&alpha) {
             self.graph.replace(node, self.nodes[k]);
             return false;
@@ -224,7 +253,9 @@ impl LowerBound {
         while k < self.vectors.len() {
             if alpha.iter().zip(&self.vectors[k]).all(|(x, y)| x >= y) {
                 let old = self.remove(k);
-                self.graph.replace(old, node);
+                if !protect.contains(&self.graph.resolve(old)) {
+                    self.graph.replace(old, node);
+                }
             } else {
                 k += 1;
             }

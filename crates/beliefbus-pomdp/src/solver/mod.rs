@@ -17,7 +17,8 @@
 //!   fixed ε sends every trial ~log(gap/ε)/log(1/γ) steps deep (≈110 on
 //!   Hallway), where backups barely move b₀; short trials tighten b₀ faster.
 //!
-//! Lower bound: α-vectors from blind policies, pruned by pointwise dominance
+//! Lower bound: α-vectors from blind policies and from open-loop plans
+//! guided by the MDP's Q-values ([`heuristic`]), pruned by pointwise dominance
 //! and by the sampled beliefs; every vector's plan is recorded ([`graph`]),
 //! so a solution can be carried to another model as a controller and
 //! evaluated there exactly; at the end V̲(b₀) is raised to the exact value
@@ -26,6 +27,7 @@
 //! matrices are sparse throughout.
 
 pub mod graph;
+pub mod heuristic;
 pub mod lower;
 pub mod upper;
 
@@ -83,6 +85,15 @@ pub struct SolveOptions {
     /// attains V̲ (seen on the light-dark chains: it stays in the light
     /// for ever). `false` keeps every non-dominated vector.
     pub prune_lower: bool,
+    /// Steps of the open-loop plans added to the initial lower bound
+    /// ([`heuristic`]; 0: blind policies only). Off by default: with them
+    /// on, one refined-chain test (`chain_pomdp::warm`) finds the best
+    /// vector at b₀ 1.2e-4 above its plan's exact value, a redirect
+    /// interaction not yet explained.
+    pub open_loop_horizon: usize,
+    /// Divide each child's weighted excess by one more than the number of
+    /// trials that already went into it (false: HSVI2's largest excess).
+    pub spread_trials: bool,
 }
 
 impl Default for SolveOptions {
@@ -97,6 +108,8 @@ impl Default for SolveOptions {
             initial_controller: None,
             belief_flush: 0.0,
             prune_lower: true,
+            open_loop_horizon: 0,
+            spread_trials: true,
         }
     }
 }
@@ -196,11 +209,26 @@ pub fn solve(
     let g = p.discount;
     let eps = opts.precision;
     let tol = eps * (1.0 - g) * 1e-2;
-    let mut lb = LowerBound::blind(p, tol, 100_000);
+    let blind = lower::blind_vectors(p, tol, 100_000);
+    let mut lb = LowerBound::from_blind(p, &blind);
     // FIB may take at most a quarter of the budget (it is O(|A|²) per
     // state and observation; stopping early keeps it an upper bound).
     let fib_deadline = opts.time_limit.map(|l| t0 + l / 4);
-    let mut ub = UpperBound::new(p, upper::fib_until(p, tol, 100_000, fib_deadline));
+    let q_mdp = upper::mdp_q(p, tol, 100_000, fib_deadline);
+    if opts.open_loop_horizon > 0 {
+        // At most a twentieth of the budget: the plans found by then are
+        // bounds already.
+        let deadline = opts.time_limit.map(|l| Instant::now() + l / 20);
+        for plan in heuristic::open_loop_plans(p, &q_mdp, &blind, opts.open_loop_horizon, deadline)
+        {
+            let mut node = lb.graph.push_loop(plan.final_action);
+            for &a in plan.prefix.iter().rev() {
+                node = lb.graph.push(a, &vec![node; p.n_obs()]);
+            }
+            lb.add(plan.alpha, plan.prefix[0], node);
+        }
+    }
+    let mut ub = UpperBound::new(p, upper::fib_from(p, q_mdp, tol, 100_000, fib_deadline));
     // A plan's value at a corner e_s is at most V*(e_s) ≤ the FIB corner
     // value: a supplied vector above it anywhere is no plan's value, and
     // trusting it would let the solver stop on a false bound.
@@ -242,6 +270,7 @@ pub fn solve(
     let mut seen: HashSet<Vec<u64>> = HashSet::new();
     let mut pruned_at = lb.vectors.len().max(16);
     let mut trials = 0u64;
+    let mut visits: std::collections::HashMap<u64, u32> = std::collections::HashMap::new();
     let mut last_report: Option<Instant> = None;
     let mut report = |lb: &mut LowerBound, ub: &mut UpperBound, trials: u64, force: bool| {
         if force || last_report.is_none_or(|t| t.elapsed() >= opts.report_interval) {
@@ -275,17 +304,33 @@ pub fn solve(
                 break;
             }
             threshold /= g;
-            let mut pick: Option<(usize, f64)> = None;
+            // The child with the largest weighted excess, divided by one
+            // more than the trials that already descended into it
+            // (`spread_trials`): a child whose bounds the trials could not
+            // move hands the next trial to its siblings.
+            let mut pick: Option<(usize, f64, u64)> = None;
             for (k, br) in branches[a_star].iter().enumerate() {
                 let excess = br.prob * (child_upper[a_star][k] - lb.value(&br.belief) - threshold);
-                if pick.is_none_or(|(_, e)| excess > e) {
-                    pick = Some((k, excess));
+                if excess <= 0.0 {
+                    continue;
+                }
+                let (score, h) = if opts.spread_trials {
+                    let h = belief_hash(&br.belief);
+                    let n = visits.get(&h).copied().unwrap_or(0);
+                    (excess / (1.0 + n as f64), h)
+                } else {
+                    (excess, 0)
+                };
+                if pick.is_none_or(|(_, e, _)| score > e) {
+                    pick = Some((k, score, h));
                 }
             }
-            let child = match pick {
-                Some((k, e)) if e > 0.0 => Some(branches[a_star][k].belief.clone()),
-                _ => None,
-            };
+            let child = pick.map(|(k, _, h)| {
+                if opts.spread_trials {
+                    *visits.entry(h).or_insert(0) += 1;
+                }
+                branches[a_star][k].belief.clone()
+            });
             path.push((b, branches));
             match child {
                 Some(c) => b = c,
@@ -368,8 +413,25 @@ fn add_plan_value(p: &Pomdp, lb: &mut LowerBound, b0: &SparseBelief, tol: f64, d
     let mut values = graph::evaluate(p, &action, &next, init, tol, Some(deadline));
     let alpha = values.swap_remove(0);
     if alpha.iter().all(|x| x.is_finite()) {
-        lb.add(alpha, action[0], start);
+        // The certificate holds for this controller as it is now. Adding
+        // α at `start` redirects the nodes of the vectors it dominates to
+        // `start`; one inside its own plan, whose evaluated value can
+        // exceed its vector, would change the plan under its certificate,
+        // so those keep their successors (their vectors still leave Γ).
+        let inside: HashSet<u32> = order.iter().copied().collect();
+        lb.add_protecting(alpha, action[0], start, &inside);
     }
+}
+
+/// A hash of the belief's support and masses (bit for bit).
+fn belief_hash(b: &SparseBelief) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    b.idx.hash(&mut h);
+    for v in &b.val {
+        v.to_bits().hash(&mut h);
+    }
+    h.finish()
 }
 
 fn successors(p: &Pomdp, upd: &mut Updater, b: &SparseBelief) -> Vec<Vec<Branch>> {

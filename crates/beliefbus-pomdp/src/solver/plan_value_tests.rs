@@ -51,3 +51,27 @@ fn lower_bound_at_b0_is_its_plans_exact_value() {
         assert!(sol.lower <= sol.upper + 1e-9);
     }
 }
+
+/// Spreading the trials changes where they go, not what the bounds mean:
+/// with and without it the solve converges and the two intervals overlap
+/// (the exact value lies in both; `tests/solver.rs` checks it against
+/// exact value iteration with the default, spread, rule).
+#[test]
+fn spread_and_plain_trials_reach_overlapping_intervals() {
+    let p = noisy_two_state();
+    let run = |spread_trials| {
+        let opts = SolveOptions {
+            precision: 1e-4,
+            time_limit: Some(Duration::from_secs(60)),
+            threads: 1,
+            spread_trials,
+            ..Default::default()
+        };
+        solve(&p, &opts, |_| {}).expect("solves")
+    };
+    let (a, b) = (run(true), run(false));
+    for s in [&a, &b] {
+        assert!(s.converged && s.upper - s.lower <= 1e-4 && s.upper >= s.lower);
+    }
+    assert!(a.lower <= b.upper + 1e-12 && b.lower <= a.upper + 1e-12);
+}

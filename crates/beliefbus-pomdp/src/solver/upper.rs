@@ -62,9 +62,26 @@ pub fn fib_until(
     max_iter: usize,
     deadline: Option<std::time::Instant>,
 ) -> Vec<Vec<f64>> {
+    fib_from(
+        p,
+        mdp_q(p, tol, max_iter, deadline),
+        tol,
+        max_iter,
+        deadline,
+    )
+}
+
+/// [`fib_until`] from the given `q`, which must satisfy `H_FIB q ≤ q`
+/// (e.g. [`mdp_q`]'s result) for the iterates to stay upper bounds.
+pub fn fib_from(
+    p: &Pomdp,
+    mut q: Vec<Vec<f64>>,
+    tol: f64,
+    max_iter: usize,
+    deadline: Option<std::time::Instant>,
+) -> Vec<Vec<f64>> {
     let g = p.discount;
     let (ns, na, no) = (p.n_states(), p.n_actions(), p.n_obs());
-    let mut q = mdp_q(p, tol, max_iter, deadline);
     let mut acc = vec![0.0; no * na];
     let mut seen = vec![false; no];
     let mut touched: Vec<u32> = Vec::new();
