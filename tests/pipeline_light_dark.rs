@@ -42,15 +42,18 @@ fn the_light_dark_scenario_solves_its_policy_then_runs_it_live_with_swaps() {
         "{err}"
     );
 
-    // Solve it (the command the error names, with a 3 s budget: the
-    // budget is not part of the problem, so the file stays current).
+    // Solve it (the command the error names, with a 0.3 s budget: the
+    // budget is not part of the problem, so the file stays current). Short
+    // on purpose: the background rounds must find a better policy during
+    // the run (a 3 s policy's V̲(b₀) 457 is more than a 1 s round from it
+    // reaches; a 0.3 s policy's 401 is not: 5 swaps in 8 s).
     let solve = [
         "solve",
         "light-dark",
         "--out",
         policy.to_str().unwrap(),
         "--set",
-        "light-dark.policy.solve_s=3.0",
+        "light-dark.policy.solve_s=0.3",
     ];
     let o = beliefbus(&dir, &solve);
     let out = String::from_utf8_lossy(&o.stdout);
@@ -104,13 +107,13 @@ fn the_light_dark_scenario_solves_its_policy_then_runs_it_live_with_swaps() {
     assert!(episodes >= 20, "{m}");
     assert_eq!(m["truth_gaps"], 0, "{m}");
     assert_eq!(m["fallbacks"], 0, "{m}");
-    // A 3 s policy reaches the goal in about 85 % of the discrete
-    // problem's episodes (the scenario's unit tests: ≥ 70 % at 95 %);
-    // here the 95 % Wilson interval of the live fraction must lie above
-    // 60 %.
+    // The 0.3 s policy and its improvements reach the goal in 71 of 71
+    // live episodes (8 s, release); the scenario's unit tests ask ≥ 70 %
+    // of the discrete problem's at 95 %; here the 95 % Wilson interval of
+    // the live fraction must lie above 60 %.
     let ci = m["goal_fraction_ci95"].as_array().unwrap();
     assert!(ci[0].as_f64().unwrap() > 0.6, "{m}");
-    // The background solve improved the 3 s policy during the run.
+    // The background solve improved the 0.3 s policy during the run.
     assert!(m["policy_swaps"].as_u64().unwrap() >= 1, "{m}");
     // Lookup times and deadline misses are reported, not asserted (no
     // timing limits in tests; the figures are in docs and the notes).
