@@ -337,6 +337,20 @@ mod tests {
         }
     }
 
+    /// The vehicle's and motion noise's defaults with a 0.1 m / 0.01 rad laser.
+    fn small_model() -> crate::slam::SlamModel {
+        crate::slam::SlamModel {
+            ute: Default::default(),
+            motion: Default::default(),
+            laser: crate::laser::LaserNoise {
+                var_range: 0.01,
+                var_bearing: 1e-4,
+            },
+            assoc: Default::default(),
+            max_range: 15.0,
+        }
+    }
+
     #[test]
     fn refine_assoc_parses_mode_and_draw_and_names_the_key_on_bad_input() {
         let doc = super::super::slam::PARAMS;
@@ -353,16 +367,7 @@ mod tests {
             other => panic!("{other:?}"),
         }
         // Only implicit-refine has the setting.
-        let model = crate::slam::SlamModel {
-            ute: Default::default(),
-            motion: Default::default(),
-            laser: crate::laser::LaserNoise {
-                var_range: 0.01,
-                var_bearing: 1e-4,
-            },
-            assoc: Default::default(),
-            max_range: 15.0,
-        };
+        let model = small_model();
         for (name, has) in [
             ("implicit-refine", true),
             ("fastslam2", false),
@@ -379,16 +384,7 @@ mod tests {
     /// with it.
     #[test]
     fn every_particle_filter_takes_the_interval_prior_and_the_move_is_refused_with_it() {
-        let model = crate::slam::SlamModel {
-            ute: Default::default(),
-            motion: Default::default(),
-            laser: crate::laser::LaserNoise {
-                var_range: 0.01,
-                var_bearing: 1e-4,
-            },
-            assoc: Default::default(),
-            max_range: 15.0,
-        };
+        let model = small_model();
         for name in [
             "implicit",
             "implicit-rb",
