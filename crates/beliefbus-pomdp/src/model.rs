@@ -158,6 +158,18 @@ pub struct Pomdp {
 }
 
 impl Pomdp {
+    /// The one-step backup of `v` under action `a` at state `s`:
+    /// r(s, a) + γ Σ_{s'} T(s' | s, a) v(s'), over the sparse row.
+    pub fn backup_at(&self, a: usize, s: usize, v: &[f64]) -> f64 {
+        let (cols, vals) = self.trans[a].row(s);
+        let ev: f64 = cols
+            .iter()
+            .zip(vals)
+            .map(|(&j, &t)| t * v[j as usize])
+            .sum();
+        self.reward[a][s] + self.discount * ev
+    }
+
     /// Checks shapes and distributions; rows (and b₀) that sum to one within
     /// [`ROW_TOLERANCE`] are renormalised exactly. Names default to indices.
     pub fn new(

@@ -120,13 +120,7 @@ pub fn carry(
         for (k, hk) in h.iter_mut().enumerate() {
             let a = acts[k];
             for (s, hs) in hk.iter_mut().enumerate() {
-                let (cols, vals) = p.trans[a].row(s);
-                let ev: f64 = cols
-                    .iter()
-                    .zip(vals)
-                    .map(|(&j, &t)| t * w[j as usize])
-                    .sum();
-                *hs = p.reward[a][s] + p.discount * ev;
+                *hs = p.backup_at(a, s, w);
             }
         }
     };

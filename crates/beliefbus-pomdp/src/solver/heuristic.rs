@@ -130,13 +130,7 @@ pub fn backward(p: &Pomdp, prefix: &[usize], last: &[f64]) -> Vec<f64> {
     let mut out = vec![0.0; alpha.len()];
     for &a in prefix.iter().rev() {
         for (s, o) in out.iter_mut().enumerate() {
-            let (cols, vals) = p.trans[a].row(s);
-            let ev: f64 = cols
-                .iter()
-                .zip(vals)
-                .map(|(&j, &t)| t * alpha[j as usize])
-                .sum();
-            *o = p.reward[a][s] + p.discount * ev;
+            *o = p.backup_at(a, s, &alpha);
         }
         std::mem::swap(&mut alpha, &mut out);
     }

@@ -54,13 +54,7 @@ pub fn blind_vectors(p: &Pomdp, tol: f64, max_iter: usize) -> Vec<Vec<f64>> {
             for _ in 0..max_iter {
                 let mut change: f64 = 0.0;
                 for s in 0..n {
-                    let (cols, vals) = p.trans[a].row(s);
-                    let ev: f64 = cols
-                        .iter()
-                        .zip(vals)
-                        .map(|(&j, &t)| t * v[j as usize])
-                        .sum();
-                    next[s] = p.reward[a][s] + g * ev;
+                    next[s] = p.backup_at(a, s, &v);
                     change = change.max((next[s] - v[s]).abs());
                 }
                 std::mem::swap(&mut v, &mut next);

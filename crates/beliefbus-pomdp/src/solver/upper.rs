@@ -152,13 +152,7 @@ pub fn mdp_q(
         let mut change: f64 = 0.0;
         for s in 0..ns {
             for a in 0..na {
-                let (cols, vals) = p.trans[a].row(s);
-                let ev: f64 = cols
-                    .iter()
-                    .zip(vals)
-                    .map(|(&j, &t)| t * v[j as usize])
-                    .sum();
-                let x = p.reward[a][s] + g * ev;
+                let x = p.backup_at(a, s, &v);
                 if x < q[a][s] {
                     change = change.max(q[a][s] - x);
                     q[a][s] = x;
