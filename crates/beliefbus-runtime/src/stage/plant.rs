@@ -9,7 +9,11 @@
 //!
 //! A discrete-time plant (`Dynamics::Discrete`) does not move between
 //! samples: it takes one step per sample ([`crate::scenario::Plant::step`])
-//! with the control in force at t_k.
+//! with the control in force at t_k. Its step index is the sample's
+//! sequence number, so after a stall it never skips numbers: where a
+//! continuous plant skips the missed ticks (its state moved on meanwhile),
+//! a discrete one moves its schedule to the present and takes the next
+//! step there (the missed ticks are counted as stale either way).
 //!
 //! A multi-rate plant (several sensors at their own rates, e.g. odometry
 //! at 40 Hz and a laser at 5 Hz) announces each sample
@@ -204,10 +208,13 @@ pub fn run_resumed(
     ports.stats.publish(&m, clock.now_ns(), false)?;
     let t0 = clock.now_ns();
     let mut t_prev = t0;
+    let discrete = system.sde_model().is_none();
+    // Ticks skipped by a discrete plant: its schedule is t0 + (k+1+shift)Δ.
+    let mut shift: u64 = 0;
     let mut k: u64 = 0;
     while !stopped(stop) && max_samples.is_none_or(|n| k < n) {
         let (mut t_k, at) = match sim.next_sample() {
-            NextSample::Periodic => (t0 + (k + 1) * period_ns, None),
+            NextSample::Periodic => (t0 + (k + 1 + shift) * period_ns, None),
             NextSample::At { channel, t } => {
                 if channel >= channels.len() || !(t.is_finite() && t >= 0.0) {
                     let _ = ports.stats.publish(&m, clock.now_ns(), true);
@@ -242,10 +249,15 @@ pub fn run_resumed(
             continue;
         }
         if at.is_none() && now > t_k + MAX_BEHIND * period_ns {
-            // Far behind (e.g. the machine stalled): skip to the present.
+            // Far behind (e.g. the machine stalled): skip to the present —
+            // the sample numbers too, unless a step is a sample.
             let skip = (now - t_k) / period_ns;
             m.count_drop(DropReason::Stale, skip);
-            k += skip;
+            if discrete {
+                shift += skip;
+            } else {
+                k += skip;
+            }
             t_k += skip * period_ns;
         }
         clock.sleep_until_ns(t_k);

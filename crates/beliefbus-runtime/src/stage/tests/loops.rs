@@ -1,6 +1,7 @@
 //! Control, refine and plant loops, and all stages closing the loop.
 
 use super::*;
+use crate::rt::Clock;
 
 #[test]
 fn control_loop_steers_toward_the_active_waypoint() {
@@ -108,11 +109,19 @@ fn plant_truth(
     n: u64,
     control: Option<Control>,
 ) -> (Vec<Truth>, Vec<SensorSample>, StageStats) {
+    plant_truth_on(cfg, n, control, &SimClock::new(1_000_000_000))
+}
+
+fn plant_truth_on(
+    cfg: &PipelineConfig,
+    n: u64,
+    control: Option<Control>,
+    clock: &dyn Clock,
+) -> (Vec<Truth>, Vec<SensorSample>, StageStats) {
     let bus = Bus::open(&cfg.bus(), "test").unwrap();
     let truth = bus.subscriber_with::<Truth>(512, false).unwrap();
     let sensor = bus.subscriber_with::<SensorSample>(256, false).unwrap();
     let mut ctl = bus.publisher::<Control>().unwrap();
-    let clock = SimClock::new(1_000_000_000);
     let stop = AtomicBool::new(false);
     let pb = Bus::open(&cfg.bus(), "plant").unwrap();
     let ports = plant::PlantPorts::open(&pb, StageIdentity::plain(StageKind::Plant), cfg).unwrap();
@@ -122,7 +131,7 @@ fn plant_truth(
     if let Some(c) = control {
         ctl.publish(&c).unwrap();
     }
-    let fin = plant::run_for(ports, cfg, &clock, &stop, Some(n)).unwrap();
+    let fin = plant::run_for(ports, cfg, clock, &stop, Some(n)).unwrap();
     let mut t = Vec::new();
     while let Some(x) = truth.receive().unwrap() {
         t.push(x);
@@ -170,6 +179,79 @@ fn plant_is_periodic_deterministic_and_applies_controls() {
     assert!((v - 6.0).abs() < 2.0, "x3 after 2 s of u1 = 3: {v}");
     assert_eq!(t3.last().unwrap().u[0], 3.0);
     assert!(fin3.mean_goal_distance > 0.0);
+}
+
+/// Simulated time in which the host takes the process away once: the
+/// `at`-th sleep returns `stall_ns` late.
+struct StallingClock {
+    inner: SimClock,
+    sleeps: std::sync::atomic::AtomicU64,
+    at: u64,
+    stall_ns: u64,
+}
+
+impl Clock for StallingClock {
+    fn now_ns(&self) -> u64 {
+        self.inner.now_ns()
+    }
+    fn sleep_until_ns(&self, t_ns: u64) {
+        self.inner.sleep_until_ns(t_ns);
+        if self.sleeps.fetch_add(1, Ordering::SeqCst) + 1 == self.at {
+            self.inner.advance(self.stall_ns);
+        }
+    }
+}
+
+/// After a stall of 50 periods (past the plant's 20-period catch-up), a
+/// continuous plant skips the missed ticks' numbers — its state moved on
+/// meanwhile — but a discrete-time plant, whose step index is the sample
+/// number, keeps its numbers contiguous and resumes its schedule from the
+/// present. Both count the skipped ticks as stale.
+#[test]
+fn after_a_stall_only_a_discrete_plant_keeps_its_numbers_contiguous() {
+    let stalled = |cfg: &PipelineConfig, period_ns: u64, n: u64| {
+        let clock = StallingClock {
+            inner: SimClock::new(1_000_000_000),
+            sleeps: Default::default(),
+            at: 10,
+            stall_ns: 51 * period_ns + period_ns / 2,
+        };
+        plant_truth_on(cfg, n, None, &clock)
+    };
+    let stale = |fin: &StageStats| fin.dropped_by_reason[DropReason::Stale as usize];
+
+    // The ship at 100 Hz: the 11th sample is 50 numbers on (and the run
+    // of 80 numbers has 30 samples).
+    let cfg = test_config(&[]);
+    let _c = Cleanup(cfg.run.prefix.clone());
+    let (t, s, fin) = stalled(&cfg, 10_000_000, 80);
+    assert_eq!((t.len(), s.len()), (30, 30));
+    let seqs: Vec<u64> = s.iter().map(|s| s.seq).collect();
+    assert_eq!(seqs[9..11], [9, 60]);
+    assert_eq!(stale(&fin), 50);
+
+    // The inventory at 5 kHz: every number, the schedule moved on by the
+    // 50 skipped ticks.
+    let dir = std::env::temp_dir().join(format!("bb-stall-{}", std::process::id()));
+    let policy = format!("inventory.policy.path=\"{}\"", dir.join("p.json").display());
+    let cfg = load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/inventory.toml"),
+        &[
+            format!("run.prefix=\"{}\"", cleanup::run_prefix()),
+            "control.backend=\"none\"".to_string(),
+            policy,
+        ],
+    )
+    .unwrap();
+    let _c = Cleanup(cfg.run.prefix.clone());
+    let (t, s, fin) = stalled(&cfg, 200_000, 40);
+    assert_eq!((t.len(), s.len()), (40, 40));
+    for (k, (t, s)) in t.iter().zip(&s).enumerate() {
+        assert_eq!((t.header.seq, s.seq), (k as u64, k as u64));
+        let ticks = k as u64 + 1 + if k >= 10 { 50 } else { 0 };
+        assert_eq!(s.t_meas_ns, 1_000_000_000 + ticks * 200_000, "{k}");
+    }
+    assert_eq!(stale(&fin), 50);
 }
 
 /// A multi-rate plant (the car park: odometry at 40 Hz, laser scans in
