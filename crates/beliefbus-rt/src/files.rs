@@ -147,10 +147,29 @@ fn create_exclusive(path: &Path, mode: u32) -> io::Result<File> {
         .open(path)
 }
 
+/// Whether a write reaches the disk before it is renamed into place.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Durability {
+    /// Synced: the file survives a crash of the machine (outputs).
+    Synced,
+    /// Not synced: atomic for every process (the rename), lost with the
+    /// machine. For state that lives only as long as the run — the run's
+    /// shared memory is lost with the machine too — and is written often:
+    /// a sync per write waits for the disk (milliseconds to tens of
+    /// milliseconds) and makes the kernel write each version out at once.
+    RunScoped,
+}
+
 /// Write `bytes` to a fresh temporary in `dir` (mode `mode`, before the
 /// umask) and rename it to `target`, which `rename(2)` replaces whatever it
 /// is — a planted link included — without following it.
-fn write_and_rename(dir: &Path, target: &Path, bytes: &[u8], mode: u32) -> io::Result<()> {
+fn write_and_rename(
+    dir: &Path,
+    target: &Path,
+    bytes: &[u8],
+    mode: u32,
+    durability: Durability,
+) -> io::Result<()> {
     let mut last = None;
     for attempt in 0..16 {
         let tmp = temp_name(dir, target, attempt);
@@ -158,7 +177,10 @@ fn write_and_rename(dir: &Path, target: &Path, bytes: &[u8], mode: u32) -> io::R
             Ok(mut f) => {
                 let r = f
                     .write_all(bytes)
-                    .and_then(|_| f.sync_data())
+                    .and_then(|_| match durability {
+                        Durability::Synced => f.sync_data(),
+                        Durability::RunScoped => Ok(()),
+                    })
                     .and_then(|_| std::fs::rename(&tmp, target));
                 if r.is_err() {
                     let _ = std::fs::remove_file(&tmp);
@@ -181,10 +203,10 @@ fn parent_of(path: &Path) -> PathBuf {
 
 /// Write `path` (in a private directory: [`check_private_dir`]) atomically,
 /// mode 0600.
-pub fn write_private(path: &Path, bytes: &[u8]) -> io::Result<()> {
+pub fn write_private(path: &Path, bytes: &[u8], durability: Durability) -> io::Result<()> {
     let dir = parent_of(path);
     check_private_dir(&dir)?;
-    write_and_rename(&dir, path, bytes, 0o600)
+    write_and_rename(&dir, path, bytes, 0o600, durability)
 }
 
 /// Read `path` only if its directory is private to this user and the file
@@ -216,7 +238,7 @@ pub fn replace_file(path: &Path, bytes: &[u8]) -> io::Result<()> {
             format!("{} is a directory", path.display()),
         ));
     }
-    write_and_rename(&parent_of(path), path, bytes, 0o644)
+    write_and_rename(&parent_of(path), path, bytes, 0o644, Durability::Synced)
 }
 
 /// Open a user-named output that is written as it goes (a timeline): created

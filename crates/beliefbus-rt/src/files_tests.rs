@@ -31,7 +31,7 @@ fn a_shared_or_linked_directory_is_not_private() {
     let link = d.path().join("link");
     symlink(inner.path(), &link).unwrap();
     assert!(check_private_dir(&link).is_err(), "a link to a private dir");
-    assert!(write_private(&open.join("f"), b"x").is_err());
+    assert!(write_private(&open.join("f"), b"x", Durability::Synced).is_err());
     assert!(!open.join("f").exists());
 }
 
@@ -45,7 +45,7 @@ fn a_planted_link_in_a_private_dir_is_replaced_not_followed() {
     // The temporary's name is not predictable; plant a link at the old
     // fixed name too (`<file>.tmp`).
     symlink(&victim, d.path().join("filter.resume.tmp")).unwrap();
-    write_private(&target, b"{}").unwrap();
+    write_private(&target, b"{}", Durability::RunScoped).unwrap();
     assert_eq!(std::fs::read(&victim).unwrap(), b"precious");
     assert!(!std::fs::symlink_metadata(&target)
         .unwrap()
@@ -59,7 +59,7 @@ fn a_planted_link_in_a_private_dir_is_replaced_not_followed() {
 fn reading_refuses_links_and_non_private_directories() {
     let d = scratch("read");
     let real = d.path().join("real");
-    write_private(&real, b"ok").unwrap();
+    write_private(&real, b"ok", Durability::Synced).unwrap();
     assert_eq!(read_private(&real).unwrap(), b"ok");
     let link = d.path().join("link");
     symlink(&real, &link).unwrap();

@@ -87,9 +87,11 @@ pub fn decode(bytes: &[u8]) -> Result<(u32, Vec<u64>), CheckpointError> {
 }
 
 /// Writes refine's checkpoints (a no-op outside a supervised run) on a
-/// thread of its own: the write ends with an fsync, which takes
-/// milliseconds to tens of milliseconds of wall time — far more than a
-/// refine round may last. The stage begins a checkpoint
+/// thread of its own: writing a version's file (a megabyte for 2000
+/// states) and renaming it into place takes longer than a refine round
+/// should give to it. The file is not synced: it serves restarts within
+/// the run, which a crash of the machine ends anyway
+/// ([`crate::rt::files::Durability::RunScoped`]). The stage begins a checkpoint
 /// ([`Checkpointer::begin`]) and sends the version only once it is durable
 /// ([`Checkpointer::is_durable`]), so the guarantee of the module doc holds.
 pub struct Checkpointer {
@@ -142,7 +144,7 @@ impl Checkpointer {
     }
 
     /// Begin saving `snapshot` (the words of the next version): encoded here
-    /// (a copy), written and synced by the writer thread. Waits for a
+    /// (a copy), written by the writer thread. Waits for a
     /// previous checkpoint still in flight (the stage begins one only once
     /// the previous one is durable, so it does not wait).
     pub fn begin(&mut self, next_id: u32, snapshot: &[u64]) {

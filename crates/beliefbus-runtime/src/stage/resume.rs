@@ -184,10 +184,14 @@ impl Resume {
     }
 }
 
+/// Resume files and checkpoints live in the run's state directory and
+/// serve restarts within the run: atomic, not synced.
 fn write(path: &Path, bytes: &[u8]) -> Result<(), ResumeError> {
-    files::write_private(path, bytes).map_err(|e| ResumeError::Write {
-        path: path.display().to_string(),
-        reason: e.to_string(),
+    files::write_private(path, bytes, files::Durability::RunScoped).map_err(|e| {
+        ResumeError::Write {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        }
     })
 }
 
@@ -230,7 +234,7 @@ mod tests {
         let tmp = files::PrivateDir::create("bb-resume-").unwrap();
         let path = tmp.path().join("refine.resume.json");
         let text = r#"{"restarts":1,"state_dir":"/etc","belief":null,"control":null,"truth":null}"#;
-        files::write_private(&path, text.as_bytes()).unwrap();
+        files::write_private(&path, text.as_bytes(), files::Durability::RunScoped).unwrap();
         let r = Resume::load(&path).unwrap();
         assert_eq!(r.state_dir.as_deref(), Some(tmp.path()));
         assert_eq!(
