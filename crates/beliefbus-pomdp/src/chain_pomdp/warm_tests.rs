@@ -5,6 +5,7 @@ use super::super::tests::{chain, lqg, quadratic, spec};
 use super::*;
 use crate::chain_pomdp::{build, GaussianObservation};
 use crate::solver::dense_eval::exact_value;
+use crate::solver::sparse_eval::iterative_value;
 use crate::solver::{solve, SolveOptions};
 
 fn best_at(values: &[Vec<f64>], b: &[f64]) -> f64 {
@@ -62,13 +63,17 @@ fn carried_plans_are_worth_what_they_claim_and_no_more() {
     let pair = refined_pair();
     let c = carried(&pair, 12);
     assert!(c.len() >= 2, "{} nodes carried", c.len());
-    let exact = exact_value(&pair.p2.pomdp, &c);
+    let (exact, e) = iterative_value(&pair.p2.pomdp, &c, None, 1e-13, 1_000_000);
+    assert!(e < 1e-10, "evaluation bound {e}");
     for (k, (v, x)) in c.values.iter().zip(&exact).enumerate() {
         for (s, (a, b)) in v.iter().zip(x).enumerate() {
             // A certified lower bound of the controller's value ...
-            assert!(a <= &(b + 1e-9), "node {k} state {s}: {a} above exact {b}");
+            assert!(
+                *a <= b + e + 1e-9,
+                "node {k} state {s}: {a} above exact {b}"
+            );
             // ... and, converged, equal to it.
-            assert!(a >= &(b - 1e-6), "node {k} state {s}: {a} far below {b}");
+            assert!(*a >= b - e - 1e-6, "node {k} state {s}: {a} far below {b}");
         }
     }
 }
@@ -78,7 +83,10 @@ fn warm_lower_bound_at_b0_is_at_least_the_carried_plans_exact_value() {
     let pair = refined_pair();
     let c = carried(&pair, 12);
     let b0 = pair.p2.pomdp.start.clone();
-    let exact_b0 = best_at(&exact_value(&pair.p2.pomdp, &c), &b0);
+    let (exact, e) = iterative_value(&pair.p2.pomdp, &c, None, 1e-13, 1_000_000);
+    assert!(e < 1e-10, "evaluation bound {e}");
+    // The carried plans are worth at least this at b₀.
+    let exact_b0 = best_at(&exact, &b0) - e;
     let opts = SolveOptions {
         precision: 1e-4,
         time_limit: Some(Duration::from_millis(200)),
@@ -181,17 +189,47 @@ fn a_cap_below_the_best_plans_size_still_carries_that_plan_whole() {
     let (order, _, _) = crate::solver::graph::reachable(&pair.s1.plan, pair.s1.plan_nodes[k]);
     assert!(order.len() > 2, "the best plan has {} nodes", order.len());
     // Carried onto its own problem with a cap of one node, the best plan
-    // is worth exactly what a dense solve of its controller gives, which
+    // is worth exactly what an independent evaluation of its controller
+    // gives, which
     // is at least the solve's V̲(b₀) (cut at the cap it would fall to the
     // blind leaf).
     let c = carry_plan(&solved, &pair.p1, 1, Duration::from_secs(5), 1e-11);
     assert!(c.len() > order.len(), "{} nodes carried", c.len());
-    let exact = best_at(&exact_value(&pair.p1.pomdp, &c), b0);
+    let (values, e) = iterative_value(&pair.p1.pomdp, &c, None, 1e-13, 1_000_000);
+    assert!(e < 1e-10, "evaluation bound {e}");
+    let exact = best_at(&values, b0);
     let v = best_at(&c.values, b0);
-    assert!((v - exact).abs() < 1e-6, "certified {v}, exact {exact}");
+    assert!((v - exact).abs() < 1e-6 + e, "certified {v}, exact {exact}");
     assert!(
-        exact >= pair.s1.lower - 1e-6,
+        exact >= pair.s1.lower - 1e-6 - e,
         "plans worth {exact} at b0, the solve claimed {}",
         pair.s1.lower
     );
+}
+
+/// The sweeps the tests above rely on agree with the dense LU solve on
+/// the chain's own (small) plans.
+#[test]
+fn sweeps_agree_with_the_dense_solve_on_small_chain_plans() {
+    let pair = refined_pair();
+    let mut checked = 0;
+    for &node in &pair.s1.plan_nodes {
+        let (_, action, next) = crate::solver::graph::reachable(&pair.s1.plan, node);
+        if action.len() > 30 {
+            continue;
+        }
+        let c = Controller {
+            values: Vec::new(),
+            action,
+            next,
+        };
+        let dense = exact_value(&pair.p1.pomdp, &c);
+        let (sweeps, e) = iterative_value(&pair.p1.pomdp, &c, None, 1e-13, 1_000_000);
+        assert!(e < 1e-10, "evaluation bound {e}");
+        for (x, y) in sweeps.iter().flatten().zip(dense.iter().flatten()) {
+            assert!((x - y).abs() <= 1e-9, "sweeps {x}, dense {y}, bound {e}");
+        }
+        checked += 1;
+    }
+    assert!(checked >= 3, "{checked} small plans");
 }

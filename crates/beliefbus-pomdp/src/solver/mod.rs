@@ -35,6 +35,8 @@ pub mod upper;
 pub(crate) mod dense_eval;
 #[cfg(test)]
 mod plan_value_tests;
+#[cfg(test)]
+pub(crate) mod sparse_eval;
 
 use crate::belief::{Branch, SparseBelief, Updater};
 use crate::model::Pomdp;
