@@ -190,9 +190,8 @@ fn a_cap_below_the_best_plans_size_still_carries_that_plan_whole() {
     assert!(order.len() > 2, "the best plan has {} nodes", order.len());
     // Carried onto its own problem with a cap of one node, the best plan
     // is worth exactly what an independent evaluation of its controller
-    // gives, which
-    // is at least the solve's V̲(b₀) (cut at the cap it would fall to the
-    // blind leaf).
+    // gives, which is at least the solve's V̲(b₀) (cut at the cap it would
+    // fall to the blind leaf).
     let c = carry_plan(&solved, &pair.p1, 1, Duration::from_secs(5), 1e-11);
     assert!(c.len() > order.len(), "{} nodes carried", c.len());
     let (values, e) = iterative_value(&pair.p1.pomdp, &c, None, 1e-13, 1_000_000);
@@ -212,12 +211,20 @@ fn a_cap_below_the_best_plans_size_still_carries_that_plan_whole() {
 #[test]
 fn sweeps_agree_with_the_dense_solve_on_small_chain_plans() {
     let pair = refined_pair();
+    let mut plans: Vec<(Vec<usize>, Vec<u32>)> = pair
+        .s1
+        .plan_nodes
+        .iter()
+        .map(|&node| {
+            let (_, action, next) = crate::solver::graph::reachable(&pair.s1.plan, node);
+            (action, next)
+        })
+        .collect();
+    plans.sort_by_key(|(a, _)| a.len());
+    plans.dedup();
     let mut checked = 0;
-    for &node in &pair.s1.plan_nodes {
-        let (_, action, next) = crate::solver::graph::reachable(&pair.s1.plan, node);
-        if action.len() > 30 {
-            continue;
-        }
+    for (action, next) in plans.into_iter().take(3) {
+        assert!(action.len() <= 80, "a plan of {} nodes", action.len());
         let c = Controller {
             values: Vec::new(),
             action,
@@ -231,5 +238,66 @@ fn sweeps_agree_with_the_dense_solve_on_small_chain_plans() {
         }
         checked += 1;
     }
-    assert!(checked >= 3, "{checked} small plans");
+    assert_eq!(checked, 3, "{checked} small plans");
+}
+
+/// Every vector the solve returns is at most the value of the plan its
+/// node stands for (after the solve's redirects), evaluated independently
+/// over the whole plan graph at once.
+#[test]
+fn every_vector_of_a_solve_is_at_most_its_plans_value() {
+    let pair = refined_pair();
+    let (p, s1) = (&pair.p1.pomdp, &pair.s1);
+    let roots: Vec<u32> = s1.plan_nodes.iter().map(|&n| s1.plan.resolve(n)).collect();
+    let mut local: HashMap<u32, u32> = HashMap::new();
+    let mut order: Vec<u32> = Vec::new();
+    for &r in &roots {
+        if local.contains_key(&r) {
+            continue;
+        }
+        local.insert(r, order.len() as u32);
+        order.push(r);
+        let mut k = order.len() - 1;
+        while k < order.len() {
+            for o in 0..p.n_obs() {
+                let m = s1.plan.next(order[k], o);
+                if let std::collections::hash_map::Entry::Vacant(e) = local.entry(m) {
+                    e.insert(order.len() as u32);
+                    order.push(m);
+                }
+            }
+            k += 1;
+        }
+    }
+    let local = &local;
+    let c = Controller {
+        values: Vec::new(),
+        action: order.iter().map(|&n| s1.plan.action(n)).collect(),
+        next: order
+            .iter()
+            .flat_map(|&n| (0..p.n_obs()).map(move |o| local[&s1.plan.next(n, o)]))
+            .collect(),
+    };
+    let (values, e) = iterative_value(p, &c, None, 1e-13, 1_000_000);
+    assert!(e < 1e-10, "evaluation bound {e}");
+    for (k, v) in s1.policy.vectors.iter().enumerate() {
+        let x = &values[local[&roots[k]] as usize];
+        for (s, (a, b)) in v.iter().zip(x).enumerate() {
+            assert!(
+                *a <= b + e + 1e-9,
+                "vector {k} state {s}: {a} above its plan's {b}"
+            );
+        }
+    }
+    let (k, v) = s1.policy.best_dense(&p.start);
+    assert!(
+        (v - s1.lower).abs() < 1e-12,
+        "V̲(b₀) is the best vector's value"
+    );
+    let x = best_at(&[values[local[&roots[k]] as usize].clone()], &p.start);
+    assert!(
+        s1.lower <= x + e + 1e-9,
+        "V̲(b₀) {} above its plan's {x}",
+        s1.lower
+    );
 }

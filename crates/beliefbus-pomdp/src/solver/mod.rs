@@ -420,6 +420,9 @@ fn add_plan_value(p: &Pomdp, lb: &mut LowerBound, b0: &SparseBelief, tol: f64, d
         // `start`; one inside its own plan, whose evaluated value can
         // exceed its vector, would change the plan under its certificate,
         // so those keep their successors (their vectors still leave Γ).
+        // `start` itself is inside: if α is dominated (an evaluation cut
+        // short by the deadline leaves a large certificate shift), `start`
+        // keeps its plan, which its vector in Γ stands for.
         let inside: HashSet<u32> = order.iter().copied().collect();
         lb.add_protecting(alpha, action[0], start, &inside);
     }
