@@ -1,5 +1,7 @@
 //! `cargo run --release --example solve -- FILE.pomdp [TIME_S] [PRECISION] [RUNS]`:
 //! solves, prints the bounds at b0 as they tighten, then simulates the policy.
+//! `THREADS=n` sets the backup threads, `OPEN_LOOP=h` the open-loop plans'
+//! horizon (`SolveOptions::open_loop_horizon`; unset: the default).
 use beliefbus_pomdp::*;
 use std::time::Duration;
 
@@ -25,6 +27,10 @@ fn main() {
             .ok()
             .and_then(|t| t.parse().ok())
             .unwrap_or(2),
+        open_loop_horizon: std::env::var("OPEN_LOOP")
+            .ok()
+            .and_then(|t| t.parse().ok())
+            .unwrap_or(SolveOptions::default().open_loop_horizon),
         ..Default::default()
     };
     let sol = solve(&p, &opts, |pr| {

@@ -342,3 +342,81 @@ fn the_belief_update_over_moment_rows_is_the_direct_bayes_update() {
         b = out;
     }
 }
+
+/// Splitting the period into k sub-steps and taking the product of their
+/// rows cannot make a constant-drift move less diffusive: every sub-step
+/// row is mean-exact, so the product is a mean-exact distribution for the
+/// whole move, and the one-step row is the least-spread such distribution
+/// (the LP above). Checked on a 150-point 2-D set like the light-dark
+/// chains' (spacing ≈ 0.3), moves of 0.3–0.9 from interior states.
+#[test]
+fn sub_steps_never_spread_less_than_the_one_step_row() {
+    let mut rng = SimRng::seed_from_u64(5);
+    let n = 150;
+    let pts: Vec<f64> = (0..2 * n).map(|_| rng.random_range(-2.0..2.0)).collect();
+    let k0 = 4 * 9;
+    let row_at = |from: usize, step: &[f64]| {
+        let m: Vec<f64> = (0..2).map(|c| pts[2 * from + c] + step[c]).collect();
+        let mut row = Vec::new();
+        let info = moment_row(&pts, 2, from, &m, &[0.0; 4], k0, &mut row);
+        (row, info)
+    };
+    let mut grew = 0;
+    let mut checked = 0;
+    for _ in 0..400 {
+        let from = rng.random_range(0..n);
+        let z = [pts[2 * from], pts[2 * from + 1]];
+        let len = rng.random_range(0.3..0.9);
+        let ang = rng.random_range(0.0..std::f64::consts::TAU);
+        let step = [len * ang.cos(), len * ang.sin()];
+        if z.iter()
+            .zip(&step)
+            .any(|(a, b)| (a + b).abs() > 0.9 || a.abs() > 0.9)
+        {
+            continue;
+        }
+        let target = [z[0] + step[0], z[1] + step[1]];
+        let mut traces = Vec::new();
+        let mut left_hull = false;
+        for k in [1usize, 2, 4] {
+            let sub = [step[0] / k as f64, step[1] / k as f64];
+            let mut dist = vec![(from as u32, 1.0)];
+            for _ in 0..k {
+                let mut next = vec![0.0; n];
+                for &(j, p) in &dist {
+                    let (row, info) = row_at(j as usize, &sub);
+                    // Near the hull the row's mean is moved (module doc):
+                    // no longer the constant-drift move compared here.
+                    left_hull |= info.shrunk;
+                    for (i, q) in row {
+                        next[i as usize] += p * q;
+                    }
+                }
+                dist = (0..n as u32).zip(next).filter(|&(_, p)| p > 0.0).collect();
+            }
+            if left_hull {
+                break;
+            }
+            let mean: Vec<f64> = (0..2)
+                .map(|c| dist.iter().map(|&(j, p)| p * pts[2 * j as usize + c]).sum())
+                .collect();
+            assert!(
+                (mean[0] - target[0]).abs() < 1e-9 && (mean[1] - target[1]).abs() < 1e-9,
+                "{k} sub-steps: mean {mean:?}, target {target:?}"
+            );
+            traces.push(second_moment(&pts, 2, &dist, &target));
+        }
+        if left_hull {
+            continue;
+        }
+        assert!(
+            traces[1] >= traces[0] - 1e-12 && traces[2] >= traces[0] - 1e-12,
+            "sub-steps spread less: {traces:?}"
+        );
+        grew += usize::from(traces[2] > 1.5 * traces[0]);
+        checked += 1;
+    }
+    assert!(checked >= 10, "{checked} interior moves");
+    // Not a tie: sub-steps usually spread much more.
+    assert!(2 * grew >= checked, "{grew} of {checked} grew by half");
+}

@@ -229,9 +229,18 @@ impl LowerBound {
         self.add_protecting(alpha, action, node, &std::collections::HashSet::new())
     }
 
-    /// [`LowerBound::add`], except that the dominated vectors whose nodes
-    /// (after redirects) are in `protect` leave Γ without their nodes being
-    /// redirected: a controller certified as it stands keeps its plans.
+    /// [`LowerBound::add`], except that protected nodes (those in
+    /// `protect` after redirects) are never redirected: the dominated
+    /// vectors whose nodes are protected leave Γ with their plans intact,
+    /// and if `alpha` itself is dominated, `node` keeps its plan when it is
+    /// protected. A controller certified as it stands keeps its plans.
+    ///
+    /// Redirecting a node is sound only if every vector standing for it is
+    /// below the vector it is sent to. A node that already holds a vector
+    /// in Γ (the plan behind V̲(b₀), given its evaluated value as a second
+    /// vector) fails that when its evaluation, cut short, came out low
+    /// enough to be dominated: the first vector would then stand for a
+    /// plan worth less than it claims.
     pub fn add_protecting(
         &mut self,
         alpha: Vec<f64>,
@@ -240,7 +249,9 @@ impl LowerBound {
         protect: &std::collections::HashSet<u32>,
     ) -> bool {
         if let Some(k) = self.dominating(&alpha) {
-            self.graph.replace(node, self.nodes[k]);
+            if !protect.contains(&self.graph.resolve(node)) {
+                self.graph.replace(node, self.nodes[k]);
+            }
             return false;
         }
         let mut k = 0;

@@ -107,3 +107,88 @@ fn best_matches_scoring_each_vector_through_adds_removals_and_pruning() {
     }
     check(&lb, &beliefs);
 }
+
+/// Every vector of Γ is at most the exact value of the plan its node
+/// stands for (after redirects), checked by a dense linear solve.
+fn assert_vectors_are_plan_values(p: &Pomdp, lb: &LowerBound) {
+    use crate::solver::dense_eval::exact_value;
+    use crate::solver::graph::{reachable, Controller};
+    for (k, v) in lb.vectors.iter().enumerate() {
+        let (_, action, next) = reachable(&lb.graph, lb.nodes[k]);
+        let c = Controller {
+            values: Vec::new(),
+            action,
+            next,
+        };
+        let exact = &exact_value(p, &c)[0];
+        for (s, (a, x)) in v.iter().zip(exact).enumerate() {
+            assert!(
+                *a <= x + 1e-9,
+                "vector {k} state {s}: {a} above its plan's {x}"
+            );
+        }
+    }
+}
+
+/// A second, lower vector for a node that already holds one (the
+/// solver's final evaluation of the plan behind V̲(b₀), cut short by its
+/// deadline so its certificate shift is large) can be dominated by
+/// another vector. The node must then keep its own plan: redirected to
+/// the dominating vector's plan, the vector it already holds would claim
+/// more than that plan is worth.
+#[test]
+fn a_dominated_second_vector_does_not_redirect_a_protected_node() {
+    let p = crate::parse_str(
+        "noisy_two_state.pomdp",
+        include_str!("../../tests/data/noisy_two_state.pomdp"),
+    )
+    .expect("parses");
+    let mut lb = LowerBound::blind(&p, 1e-13, 100_000);
+    let blind_nodes = lb.nodes.clone();
+    // A one-step conditional plan (act, then a blind policy chosen per
+    // observation) that no blind vector dominates.
+    let mut found = None;
+    'search: for a in 0..p.n_actions() {
+        for &j0 in &blind_nodes {
+            for &j1 in &blind_nodes {
+                let next = [j0, j1];
+                let w: Vec<Vec<f64>> = next
+                    .iter()
+                    .map(|&j| {
+                        lb.vectors[lb.nodes.iter().position(|&n| n == j).expect("blind")].clone()
+                    })
+                    .collect();
+                let alpha: Vec<f64> = (0..p.n_states())
+                    .map(|s| {
+                        let cont: Vec<f64> = (0..p.n_states())
+                            .map(|s2| (0..p.n_obs()).map(|o| p.obs[a].get(s2, o) * w[o][s2]).sum())
+                            .collect();
+                        p.backup_at(a, s, &cont)
+                    })
+                    .collect();
+                if lb.add_plan(alpha, a, &next) {
+                    found = Some(*lb.nodes.last().expect("added"));
+                    break 'search;
+                }
+            }
+        }
+    }
+    let node = found.expect("a conditional plan better than every blind policy somewhere");
+    assert_vectors_are_plan_values(&p, &lb);
+    // Its plan's value with a large certificate shift: dominated by a
+    // blind vector.
+    let k = lb.nodes.iter().position(|&n| n == node).expect("kept");
+    let low: Vec<f64> = lb.vectors[k].iter().map(|x| x - 100.0).collect();
+    assert!(
+        lb.dominating(&low).is_some(),
+        "the shifted vector is dominated"
+    );
+    let protect = std::collections::HashSet::from([node]);
+    assert!(!lb.add_protecting(low, lb.actions[k], node, &protect));
+    assert_eq!(
+        lb.graph.resolve(node),
+        node,
+        "the protected node was redirected"
+    );
+    assert_vectors_are_plan_values(&p, &lb);
+}
