@@ -11,6 +11,7 @@ pub mod slam_paper;
 pub mod slam_plot;
 pub mod slam_run;
 pub mod slam_svg;
+pub mod slam_sweep;
 pub mod slam_victoria;
 pub mod slam_vp_data;
 
@@ -43,7 +44,7 @@ pub fn all() -> Vec<Experiment> {
     },
     Experiment {
         name: "slam",
-        about: "implicit SLAM vs FastSLAM 1.0, FastSLAM 2.0 and EKF-SLAM on synthetic car parks driven by the Victoria Park odometry: trajectory error and time per update vs samples",
+        about: "implicit SLAM vs FastSLAM 1.0, FastSLAM 2.0 and EKF-SLAM on synthetic car parks driven by the Victoria Park odometry: trajectory error and time per update vs samples; one scalar setting given as a list (key=a,b,c) is swept, each row tagged with it",
         reproduces: "paper 003 Table 6 (Fig. 7 right)",
         params: slam::PARAMS,
         run: slam::run,

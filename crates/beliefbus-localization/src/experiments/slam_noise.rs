@@ -24,13 +24,18 @@ pub enum NoiseReading {
 }
 
 impl NoiseReading {
-    /// Parse "variance" or "sigma".
+    /// Parse "variance" or "sigma" (`noise_reading`).
     pub fn parse(s: &str) -> Result<Self, LocalizationError> {
+        Self::parse_key("noise_reading", s)
+    }
+
+    /// Parse "variance" or "sigma" given for `key`.
+    pub fn parse_key(key: &str, s: &str) -> Result<Self, LocalizationError> {
         match s {
             "variance" => Ok(Self::Variance),
             "sigma" => Ok(Self::Sigma),
             _ => Err(LocalizationError::Param {
-                key: "noise_reading".into(),
+                key: key.into(),
                 msg: format!("'{s}': need 'variance' or 'sigma'"),
             }),
         }
@@ -107,5 +112,43 @@ mod tests {
         let est = [[0.0, 3.0], [9.0, 0.0], [10.0, 4.0]];
         assert!((map_error(&est, &truth) - (3.0 + 1.0 + 4.0) / 3.0).abs() < 1e-12);
         assert_eq!(map_error(&[], &truth), 0.0);
+    }
+
+    #[test]
+    fn the_laser_reading_can_differ_from_the_motion_reading() {
+        use crate::experiments::slam::setup;
+        let kv = |pairs: &[(&str, &str)]| -> Vec<(String, String)> {
+            pairs
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect()
+        };
+        let sigma = setup(&[]).unwrap();
+        let lv = setup(&kv(&[("laser_reading", "variance")])).unwrap();
+        // The laser's variances are Table 7's numbers, the motion keeps σ.
+        assert_eq!(lv.model.laser, LaserNoise::default());
+        assert_eq!(lv.carpark.laser, LaserNoise::default());
+        assert_eq!(lv.model.motion, sigma.model.motion);
+        assert_eq!(
+            sigma.model.laser,
+            NoiseReading::Sigma.laser(LaserNoise::default())
+        );
+        // Without laser_reading the laser follows noise_reading.
+        let v = setup(&kv(&[("noise_reading", "variance")])).unwrap();
+        assert_eq!(v.model.laser, LaserNoise::default());
+        assert_eq!(v.model.motion, MotionNoise::default());
+        let back = setup(&kv(&[
+            ("noise_reading", "variance"),
+            ("laser_reading", "sigma"),
+        ]))
+        .unwrap();
+        assert_eq!(back.model.laser, sigma.model.laser);
+        match setup(&kv(&[("laser_reading", "std")])) {
+            Err(LocalizationError::Param { key, msg }) => {
+                assert_eq!(key, "laser_reading");
+                assert!(msg.contains("std"), "{msg}");
+            }
+            other => panic!("{other:?}"),
+        }
     }
 }
