@@ -16,6 +16,9 @@
 //!   ([`SolveOptions::trial_gap_fraction`]): while the gap is wide, HSVI2's
 //!   fixed ε sends every trial ~log(gap/ε)/log(1/γ) steps deep (≈110 on
 //!   Hallway), where backups barely move b₀; short trials tighten b₀ faster.
+//!   With [`SolveOptions::follow_lower_every`] = k every k-th trial takes
+//!   the lower bound's action instead of `a*` (the plan behind V̲, so that
+//!   its beliefs are backed up too); the child rule is unchanged.
 //!
 //! Lower bound: α-vectors from blind policies and from open-loop plans
 //! guided by the MDP's Q-values ([`heuristic`]), pruned by pointwise dominance
@@ -97,6 +100,16 @@ pub struct SolveOptions {
     /// Divide each child's weighted excess by one more than the number of
     /// trials that already went into it (false: HSVI2's largest excess).
     pub spread_trials: bool,
+    /// Every `k`-th trial (0: none) descends by the lower bound's action
+    /// at each belief — the action of the best α-vector there, i.e. the
+    /// plan behind V̲ — instead of the upper bound's, choosing the child by
+    /// the same weighted-excess rule. The backups on its way back are the
+    /// ordinary ones, so the bounds keep their meaning; what changes is
+    /// which beliefs are backed up: those the current best plan reaches,
+    /// where a backup can improve that plan (e.g. a plan carried from a
+    /// coarser chain, whose beliefs the upper bound's trials may never
+    /// visit).
+    pub follow_lower_every: u32,
 }
 
 impl Default for SolveOptions {
@@ -113,6 +126,7 @@ impl Default for SolveOptions {
             prune_lower: true,
             open_loop_horizon: 0,
             spread_trials: true,
+            follow_lower_every: 0,
         }
     }
 }
@@ -296,6 +310,8 @@ pub fn solve(
         let mut path: Vec<(SparseBelief, Vec<Vec<Branch>>)> = Vec::new();
         let mut b = b0.clone();
         let mut threshold = eps.max(opts.trial_gap_fraction * (ub.value(&b0) - lb.value(&b0)));
+        let every = u64::from(opts.follow_lower_every);
+        let follow_lower = every > 0 && trials % every == every - 1;
         loop {
             let branches = successors(p, &mut upd, &b);
             let (qs, child_upper) = ub.backup(p, &b, &branches, opts.threads);
@@ -307,13 +323,18 @@ pub fn solve(
                 break;
             }
             threshold /= g;
+            let a_go = if follow_lower {
+                lb.actions[lb.best(&b).0]
+            } else {
+                a_star
+            };
             // The child with the largest weighted excess, divided by one
             // more than the trials that already descended into it
             // (`spread_trials`): a child whose bounds the trials could not
             // move hands the next trial to its siblings.
             let mut pick: Option<(usize, f64, u64)> = None;
-            for (k, br) in branches[a_star].iter().enumerate() {
-                let excess = br.prob * (child_upper[a_star][k] - lb.value(&br.belief) - threshold);
+            for (k, br) in branches[a_go].iter().enumerate() {
+                let excess = br.prob * (child_upper[a_go][k] - lb.value(&br.belief) - threshold);
                 if excess <= 0.0 {
                     continue;
                 }
@@ -332,7 +353,7 @@ pub fn solve(
                 if opts.spread_trials {
                     *visits.entry(h).or_insert(0) += 1;
                 }
-                branches[a_star][k].belief.clone()
+                branches[a_go][k].belief.clone()
             });
             path.push((b, branches));
             match child {
