@@ -135,6 +135,9 @@ pub struct Setting {
     /// The 2-D solves' [`SolveOptions::trial_gap_fraction`] (0: HSVI2's
     /// fixed-precision trials).
     pub trial_gap: f64,
+    /// The 2-D solves' [`SolveOptions::follow_lower_every`] (0: every
+    /// trial follows the upper bound).
+    pub follow_lower: u32,
     /// Regular states of the 1-D chain on [−1.9, 1.9] (the thesis: 20).
     pub states_1d: usize,
 }
@@ -392,7 +395,10 @@ pub fn two_d(
         });
         let sol = solve(
             &cp.pomdp,
-            &solve_opts_gap(secs, initial, s.trial_gap),
+            &beliefbus_pomdp::SolveOptions {
+                follow_lower_every: s.follow_lower,
+                ..solve_opts_gap(secs, initial, s.trial_gap)
+            },
             |_| {},
         )?;
         each(&Sized {
@@ -462,6 +468,8 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         cell_goal: params::cell_goal(args, &mut rep)?,
         cliff: params::cliff(args, &mut rep)?,
         trial_gap: p.f64(&mut rep, "trial_gap", 0.5)?,
+        follow_lower: u32::try_from(p.usize(&mut rep, "follow_lower", 0)?)
+            .context("--param follow_lower: a trial count")?,
         states_1d: p.usize(&mut rep, "states_1d", 20)?,
     };
     anyhow::ensure!(

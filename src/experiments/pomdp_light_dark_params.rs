@@ -86,6 +86,11 @@ pub const PARAMS: &[ParamDoc] = &[
         "2-D solver: each trial aims at this fraction of the gap at b0 (0: the precision, HSVI2's deep trials)",
     ),
     p(
+        "follow_lower",
+        "0",
+        "2-D solver: every k-th trial follows the lower bound's plan instead of the upper bound (0: never)",
+    ),
+    p(
         "kappa_drift",
         "1",
         "kappa_f of the 2-D chain's holding time r^2/(kappa_F |FF'| + kappa_f r |f|)",

@@ -13,6 +13,7 @@ fn setting() -> Setting {
         cell_goal: false,
         cliff: false,
         trial_gap: 0.5,
+        follow_lower: 0,
         states_1d: 20,
     }
 }

@@ -1,7 +1,8 @@
 //! `cargo run --release --example solve -- FILE.pomdp [TIME_S] [PRECISION] [RUNS]`:
 //! solves, prints the bounds at b0 as they tighten, then simulates the policy.
 //! `THREADS=n` sets the backup threads, `OPEN_LOOP=h` the open-loop plans'
-//! horizon (`SolveOptions::open_loop_horizon`; unset: the default).
+//! horizon (`SolveOptions::open_loop_horizon`; unset: the default),
+//! `FOLLOW_LOWER=k` every k-th trial following the lower bound's plan.
 use beliefbus_pomdp::*;
 use std::time::Duration;
 
@@ -31,6 +32,10 @@ fn main() {
             .ok()
             .and_then(|t| t.parse().ok())
             .unwrap_or(SolveOptions::default().open_loop_horizon),
+        follow_lower_every: std::env::var("FOLLOW_LOWER")
+            .ok()
+            .and_then(|t| t.parse().ok())
+            .unwrap_or(0),
         ..Default::default()
     };
     let sol = solve(&p, &opts, |pr| {
