@@ -418,32 +418,13 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let mut p = Params::new(args);
     let sizes = p.list(&mut rep, "states", &[75, 150, 300, 600])?;
     let solve_s = p.f64(&mut rep, "solve_s", 60.0)?;
-    let anytime_raw = args
-        .params
-        .iter()
-        .rev()
-        .find(|(k, _)| k == "anytime_s")
-        .map(|(_, v)| v.clone());
-    let anytime: Vec<f64> = match &anytime_raw {
-        Some(s) => s
-            .split(',')
-            .map(|x| x.trim().parse::<f64>())
-            .collect::<Result<_, _>>()
-            .context("--param anytime_s: a list of seconds")?,
-        None => vec![5.0, 15.0, 30.0, 60.0],
-    };
-    rep.param("anytime_s", serde_json::json!(anytime));
+    let anytime = params::anytime(args, &mut rep)?;
     let anytime_states = p.usize(&mut rep, "anytime_states", 150)?;
     let solve_1d_s = p.f64(&mut rep, "solve_1d_s", 10.0)?;
     let sigma = p.f64(&mut rep, "noise", 0.1)?;
     let eps = p.f64(&mut rep, "epsilon", 0.1)?;
     let rate = p.f64(&mut rep, "rate", 0.1)?;
-    let plot = args
-        .params
-        .iter()
-        .rev()
-        .find(|(k, _)| k == "plot")
-        .map(|(_, v)| v.clone());
+    let plot = params::raw(args, "plot");
     params::check_keys(args)?;
     anyhow::ensure!(
         sigma > 0.0 && eps > 0.0 && rate > 0.0 && solve_s > 0.0 && solve_1d_s > 0.0,

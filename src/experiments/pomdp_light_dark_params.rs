@@ -97,6 +97,34 @@ pub const PARAMS: &[ParamDoc] = &[
     ),
 ];
 
+/// The last `--param key=…` value as given (None: absent).
+pub fn raw(args: &crate::experiments::ExperimentArgs, key: &str) -> Option<String> {
+    args.params
+        .iter()
+        .rev()
+        .find(|(k, _)| k == key)
+        .map(|(_, v)| v.clone())
+}
+
+/// `--param anytime_s=s1,s2,…` (default 5, 15, 30, 60 s), recorded in the
+/// report.
+pub fn anytime(
+    args: &crate::experiments::ExperimentArgs,
+    rep: &mut crate::experiments::ExperimentReport,
+) -> anyhow::Result<Vec<f64>> {
+    use anyhow::Context;
+    let anytime: Vec<f64> = match raw(args, "anytime_s") {
+        Some(s) => s
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .context("--param anytime_s: a list of seconds")?,
+        None => vec![5.0, 15.0, 30.0, 60.0],
+    };
+    rep.param("anytime_s", serde_json::json!(anytime));
+    Ok(anytime)
+}
+
 /// A two-word `--param key=off|on` (read directly: a word, not a number),
 /// recorded in the report; true for `on`, `off` when absent.
 fn word_choice(
@@ -106,12 +134,7 @@ fn word_choice(
     off: &str,
     on: &str,
 ) -> anyhow::Result<bool> {
-    let raw = args
-        .params
-        .iter()
-        .rev()
-        .find(|(k, _)| k == key)
-        .map(|(_, v)| v.trim().to_string());
+    let raw = raw(args, key).map(|v| v.trim().to_string());
     let chosen = match raw.as_deref() {
         None => false,
         Some(v) if v == off => false,
