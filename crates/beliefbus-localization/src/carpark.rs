@@ -421,7 +421,10 @@ mod tests {
         for (cp, s) in [(&dense, 2.0), (&sparse, 16.0)] {
             let want = len / s;
             let n = cp.landmarks.len() as f64;
-            assert!(n <= want + 1.0 && n > 0.5 * want, "{n} landmarks at {s} m, {want}");
+            assert!(
+                n <= want + 1.0 && n > 0.5 * want,
+                "{n} landmarks at {s} m, {want}"
+            );
         }
     }
 

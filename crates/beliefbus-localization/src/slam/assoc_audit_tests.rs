@@ -70,10 +70,7 @@ fn run(f: &mut dyn SlamFilter, cp: &CarPark, picks: &[Pick], known: bool) -> Vec
         marks: Vec::new(),
     };
     let mut est = vec![Pose::zeros(); cp.steps() + 1];
-    run_carpark_with(f, cp, picks, &mut stream(5, 0), &opt, |n, e, _| {
-        est[n] = *e
-    })
-    .unwrap();
+    run_carpark_with(f, cp, picks, &mut stream(5, 0), &opt, |n, e, _| est[n] = *e).unwrap();
     est
 }
 
@@ -126,7 +123,11 @@ fn scoring_leaves_the_estimates_unchanged() {
         let mut without = vec![Pose::zeros(); cp.steps() + 1];
         for k in 1..=cp.steps() {
             let dt = cp.times[k] - cp.times[k - 1];
-            let z: Vec<_> = it.next_if(|p| p.step == k).map(|p| p.z).into_iter().collect();
+            let z: Vec<_> = it
+                .next_if(|p| p.step == k)
+                .map(|p| p.z)
+                .into_iter()
+                .collect();
             without[k] = b.step(cp.controls[k - 1], dt, &z, &mut rng).unwrap();
         }
         assert_eq!(with, without, "{}", a.name());
