@@ -397,6 +397,37 @@ mod tests {
         assert_ne!(a.truth, c.truth);
     }
 
+    /// The layout is drawn after the true path from the same stream, so a
+    /// data set's true path is the same at every landmark spacing, while
+    /// what is drawn after the layout (the gaps' places, the laser's noise)
+    /// is not.
+    #[test]
+    fn the_true_path_does_not_depend_on_the_landmark_spacing() {
+        let rec = circle();
+        let at = |spacing: f64| {
+            let cfg = CarParkConfig {
+                start_time: 0.0,
+                duration: 60.0,
+                landmark_spacing: spacing,
+                ..Default::default()
+            };
+            CarPark::generate(&rec, &cfg, &mut beliefbus_core::rng::stream(9, 3)).unwrap()
+        };
+        let (dense, sparse) = (at(2.0), at(16.0));
+        assert_eq!(dense.truth, sparse.truth);
+        // About path length / spacing landmarks each (a few dropped where
+        // the circle comes back on itself).
+        let len = dense.path_length();
+        for (cp, s) in [(&dense, 2.0), (&sparse, 16.0)] {
+            let want = len / s;
+            let n = cp.landmarks.len() as f64;
+            assert!(
+                n <= want + 1.0 && n > 0.5 * want,
+                "{n} landmarks at {s} m, {want}"
+            );
+        }
+    }
+
     #[test]
     fn bad_settings_are_refused() {
         let rec = circle();

@@ -185,7 +185,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p(
         "per_run",
         "(none)",
-        "write each data set's error_pct, rms_m, spread_m, ESS, resampling rate, map size, fallbacks, Newton steps and new landmarks per method to this CSV (for paired comparisons)",
+        "write each data set's error_pct, rms_m, spread_m, ESS, resampling rate, map size, fallbacks, Newton steps, new landmarks and the association scored against the truth (wrong and missed rates, slam::assoc_audit) per method to this CSV (for paired comparisons)",
     ),
     p(
         "plot",

@@ -219,14 +219,20 @@ pub struct RunMetrics {
     pub fallback_rate: f64,
     pub newton_per_return: f64,
     pub new_rate: f64,
+    /// Per association scored against the truth (per particle for the
+    /// particle filters): returns given to another true landmark's entry,
+    /// and returns that started a duplicate ([`crate::slam::assoc_audit`]);
+    /// NaN where not scored.
+    pub wrong_rate: f64,
+    pub missed_rate: f64,
 }
 
 /// The `per_run` CSV's header and one data set's row.
-pub const PER_RUN_HEADER: &str = "method,samples,run,error_pct,rms_m,spread_m,ess_fraction,resample_rate,map_ratio,fallback_rate,newton_per_return,new_rate\n";
+pub const PER_RUN_HEADER: &str = "method,samples,run,error_pct,rms_m,spread_m,ess_fraction,resample_rate,map_ratio,fallback_rate,newton_per_return,new_rate,wrong_rate,missed_rate\n";
 
 pub fn per_run_row(name: &str, m: usize, r: u64, met: &RunMetrics) -> String {
     format!(
-        "{name},{m},{r},{},{},{},{},{},{},{},{},{}\n",
+        "{name},{m},{r},{},{},{},{},{},{},{},{},{},{},{}\n",
         met.error_pct,
         met.rms_m,
         met.spread_m,
@@ -235,7 +241,9 @@ pub fn per_run_row(name: &str, m: usize, r: u64, met: &RunMetrics) -> String {
         met.map_ratio,
         met.fallback_rate,
         met.newton_per_return,
-        met.new_rate
+        met.new_rate,
+        met.wrong_rate,
+        met.missed_rate
     )
 }
 
@@ -300,6 +308,8 @@ pub fn run_one(
             fallback_rate: st.fallbacks as f64 / returns,
             newton_per_return: st.newton_iters as f64 / returns,
             new_rate: st.new as f64 / returns,
+            wrong_rate: st.audit.rates().0,
+            missed_rate: st.audit.rates().1,
             move_accept: {
                 let (p, a) = f.move_counts();
                 if p == 0 {

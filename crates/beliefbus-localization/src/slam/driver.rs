@@ -86,6 +86,7 @@ pub fn run_carpark_with(
         let dt = cp.times[n] - cp.times[n - 1];
         let est = match it.next_if(|p| p.step == n) {
             Some(p) => {
+                filter.set_true_landmarks(&[p.landmark]);
                 if opt.known_association {
                     let a = match order.iter().position(|&l| l == p.landmark) {
                         Some(k) => Association::Known(k),
@@ -98,7 +99,10 @@ pub fn run_carpark_with(
                 }
                 filter.step(cp.controls[n - 1], dt, std::slice::from_ref(&p.z), rng)?
             }
-            None => filter.step(cp.controls[n - 1], dt, &[], rng)?,
+            None => {
+                filter.set_true_landmarks(&[]);
+                filter.step(cp.controls[n - 1], dt, &[], rng)?
+            }
         };
         for &(_, slot) in opt.marks.iter().filter(|m| m.0 == n) {
             filter.mark_ancestors(slot);

@@ -17,6 +17,8 @@
 //! allocation; none in a step that adds no landmark).
 
 use super::assoc::{innovation, inverse, near, Association, Forced, RangeBearing};
+use super::assoc_audit::AssocAudit;
+use super::map::SharedMap;
 use super::scan_assoc::ScanAssoc;
 use super::{SlamFilter, SlamModel, SlamStats};
 use crate::error::LocalizationError;
@@ -263,6 +265,10 @@ pub struct EkfSlam {
     assoc: Vec<Association>,
     forced: Forced,
     scan: ScanAssoc,
+    /// Each landmark's true origin and the association's score
+    /// ([`super::assoc_audit`]).
+    tags: SharedMap<u32>,
+    audit: AssocAudit,
 }
 
 impl EkfSlam {
@@ -276,6 +282,8 @@ impl EkfSlam {
             assoc: Vec::with_capacity(32),
             forced: Forced::with_capacity(32),
             scan: ScanAssoc::with_capacity(32),
+            tags: SharedMap::new(),
+            audit: AssocAudit::default(),
         })
     }
 }
@@ -290,6 +298,8 @@ impl SlamFilter for EkfSlam {
         self.stats = SlamStats::default();
         self.step = 0;
         self.forced.clear();
+        self.tags = SharedMap::new();
+        self.audit.reset();
     }
 
     fn step(
@@ -351,6 +361,8 @@ impl SlamFilter for EkfSlam {
                 Association::Discard => self.stats.discarded += 1,
             }
         }
+        self.audit
+            .score(&mut self.tags, n, self.state.landmarks(), &self.assoc);
         let p = self.state.pose();
         if !p.iter().all(|c| c.is_finite()) {
             return Err(LocalizationError::NonFinite {
@@ -381,6 +393,13 @@ impl SlamFilter for EkfSlam {
     }
 
     fn stats(&self) -> SlamStats {
-        self.stats
+        SlamStats {
+            audit: self.audit.counts(),
+            ..self.stats
+        }
+    }
+
+    fn set_true_landmarks(&mut self, ids: &[usize]) {
+        self.audit.set_truth(ids);
     }
 }

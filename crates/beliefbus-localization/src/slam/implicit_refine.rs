@@ -348,6 +348,7 @@ impl SlamFilter for ImplicitRefineSlam {
             self.set.x[j] = xn;
             self.set.acc[j] = Matrix3::zeros();
             self.set.logw[j] += lw;
+            self.set.audit_particle(j, before, &self.assoc);
             if let Some(c) = &self.existence {
                 self.stats.removed +=
                     self.set

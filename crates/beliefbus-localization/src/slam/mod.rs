@@ -88,6 +88,10 @@ macro_rules! particle_set_diagnostics {
             self.set.position_spread()
         }
 
+        fn set_true_landmarks(&mut self, ids: &[usize]) {
+            self.set.audit.set_truth(ids);
+        }
+
         fn mark_ancestors(&mut self, slot: usize) {
             self.set.mark_ancestors(slot);
         }
@@ -106,6 +110,9 @@ pub mod arrow;
 #[cfg(test)]
 mod arrow_tests;
 pub mod assoc;
+pub mod assoc_audit;
+#[cfg(test)]
+mod assoc_audit_tests;
 #[cfg(test)]
 mod diag_tests;
 pub mod driver;
@@ -213,6 +220,9 @@ pub struct SlamStats {
     pub discarded: usize,
     /// Landmarks removed by the existence rule (summed over particles).
     pub removed: usize,
+    /// Associations scored against the truth, wrong and missed ones
+    /// (summed over particles; [`assoc_audit`]).
+    pub audit: assoc_audit::AuditCounts,
 }
 
 /// An online SLAM filter: one call per odometry sample.
@@ -282,6 +292,11 @@ pub trait SlamFilter {
     ) -> Result<bool, LocalizationError> {
         Ok(false)
     }
+    /// Synthetic data: the true landmarks of the next step's returns, one
+    /// per return (empty: the step is not scored), for scoring the
+    /// association ([`assoc_audit`]; reported in [`SlamStats::audit`]).
+    /// The filter's estimates do not depend on it.
+    fn set_true_landmarks(&mut self, _ids: &[usize]) {}
     /// √(trace of the position covariance) of the current belief (m).
     fn position_spread(&self) -> f64;
     /// Particle filters: label every particle by its index in slot `slot`

@@ -12,6 +12,7 @@
 //! counts how many of the particles alive at that step still have
 //! descendants.
 
+use super::assoc_audit::AssocAudit;
 use super::map::SharedMap;
 use crate::error::LocalizationError;
 use crate::geometry::Pose;
@@ -31,6 +32,10 @@ pub struct SlamParticles<L: Clone> {
     /// Each landmark's existence evidence ([`super::existence`]); empty
     /// maps while the rule is off.
     pub ev: Vec<SharedMap<f32>>,
+    /// Each landmark's true origin, for scoring the association against the
+    /// truth ([`super::assoc_audit`]); empty maps unless truth is given.
+    tags: Vec<SharedMap<u32>>,
+    pub audit: AssocAudit,
     pub logw: Vec<f64>,
     pub w: Vec<f64>,
     /// Per particle, the covariance (world frame) of its pose given its
@@ -47,6 +52,7 @@ pub struct SlamParticles<L: Clone> {
     tmp_acc: Vec<Matrix3<f64>>,
     tmp_maps: Vec<SharedMap<L>>,
     tmp_ev: Vec<SharedMap<f32>>,
+    tmp_tags: Vec<SharedMap<u32>>,
     lineage: Vec<[u32; LINEAGE_SLOTS]>,
     tmp_lineage: Vec<[u32; LINEAGE_SLOTS]>,
     pub ess_threshold: f64,
@@ -75,6 +81,8 @@ impl<L: Clone> SlamParticles<L> {
             x: vec![Pose::zeros(); m],
             maps: vec![SharedMap::new(); m],
             ev: vec![SharedMap::new(); m],
+            tags: vec![SharedMap::new(); m],
+            audit: AssocAudit::default(),
             logw: vec![0.0; m],
             w: vec![1.0 / m as f64; m],
             acc: vec![Matrix3::zeros(); m],
@@ -84,6 +92,7 @@ impl<L: Clone> SlamParticles<L> {
             tmp_acc: vec![Matrix3::zeros(); m],
             tmp_maps: vec![SharedMap::new(); m],
             tmp_ev: vec![SharedMap::new(); m],
+            tmp_tags: vec![SharedMap::new(); m],
             lineage: vec![[0; LINEAGE_SLOTS]; m],
             tmp_lineage: vec![[0; LINEAGE_SLOTS]; m],
             ess_threshold,
@@ -112,6 +121,10 @@ impl<L: Clone> SlamParticles<L> {
         for e in self.ev.iter_mut() {
             *e = SharedMap::new();
         }
+        for t in self.tags.iter_mut() {
+            *t = SharedMap::new();
+        }
+        self.audit.reset();
         self.logw.fill(0.0);
         self.w.fill(1.0 / m as f64);
         for slot in 0..LINEAGE_SLOTS {
@@ -136,6 +149,7 @@ impl<L: Clone> SlamParticles<L> {
                 self.tmp_acc[k] = self.acc[a];
                 self.tmp_maps[k].share_from(&self.maps[a]);
                 self.tmp_ev[k].share_from(&self.ev[a]);
+                self.tmp_tags[k].share_from(&self.tags[a]);
                 self.tmp_lineage[k] = self.lineage[a];
             }
             std::mem::swap(&mut self.lineage, &mut self.tmp_lineage);
@@ -143,6 +157,7 @@ impl<L: Clone> SlamParticles<L> {
             std::mem::swap(&mut self.acc, &mut self.tmp_acc);
             std::mem::swap(&mut self.maps, &mut self.tmp_maps);
             std::mem::swap(&mut self.ev, &mut self.tmp_ev);
+            std::mem::swap(&mut self.tags, &mut self.tmp_tags);
             self.logw.fill(0.0);
             self.w.fill(1.0 / m as f64);
             self.resamplings += 1;
@@ -166,6 +181,14 @@ impl<L: Clone> SlamParticles<L> {
     ) -> usize {
         let x = self.x[j];
         cfg.apply(&mut self.maps[j], &mut self.ev[j], before, &x, assoc, pos)
+    }
+
+    /// Score particle j's associations `assoc` of this step against the
+    /// truth and tag the landmarks they started (`before`: its map's length
+    /// before the step); nothing unless the step's truth was given.
+    pub fn audit_particle(&mut self, j: usize, before: usize, assoc: &[super::assoc::Association]) {
+        let after = self.maps[j].len();
+        self.audit.score(&mut self.tags[j], before, after, assoc);
     }
 
     /// The ancestor of each particle at the last resampling.
@@ -218,6 +241,7 @@ impl<L: Clone> SlamParticles<L> {
         super::SlamStats {
             resamplings: self.resamplings,
             ess_fraction_sum: self.ess_fraction_sum,
+            audit: self.audit.counts(),
             ..stats
         }
     }
