@@ -45,7 +45,7 @@
 //!   32 states every 0.5 along the box's edges); `goal_reward=cell`: the terminal reward
 //!   averaged over each state's cell ([`goal_cells`]); `solves=N`: N
 //!   independent 2-D solves (chains from seeds seed, …, seed + N − 1; the
-//!   evaluations keep `seed`), summarised per size ([`replicates`]: mean
+//!   evaluations keep `seed`, or `seed + r` with `eval_seed=per_solve`), summarised per size ([`replicates`]: mean
 //!   ± s.e. over the solves and the step from the previous size paired by
 //!   solve); `budget=per_state`: solve_s · n / (first n) per size.
 //! * The box's edge: a wall by default (the truth and the moment rows
@@ -89,6 +89,8 @@ pub mod continuous;
 mod goal_cells;
 #[path = "pomdp_light_dark_model.rs"]
 mod model;
+#[path = "pomdp_light_dark_paper.rs"]
+mod paper;
 #[path = "pomdp_light_dark_params.rs"]
 mod params;
 #[path = "pomdp_light_dark_plot.rs"]
@@ -97,6 +99,8 @@ mod plot;
 mod replicates;
 #[path = "pomdp_light_dark_size_row.rs"]
 mod size_row;
+#[path = "pomdp_light_dark_trace.rs"]
+mod trace;
 use continuous::{value as continuous_value, Edge, Truth};
 pub use model::{goal_2d, light_2d, Boxes, LightDark, LightDarkObs};
 pub use params::PARAMS;
@@ -257,6 +261,7 @@ fn expected_reward(
 pub const CARRY_CAP: usize = 256;
 
 /// One size of the 2-D problem, solved.
+#[derive(Clone, Copy)]
 pub struct Sized<'a> {
     pub cp: &'a ChainPomdp,
     pub sol: &'a Solution,
@@ -502,13 +507,37 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
     let carry_check = p.usize(&mut rep, "carry_check", 0)? > 0;
     let open = p.usize(&mut rep, "open", 0)? > 0;
     let budgets = params::budgets(args, &mut rep, &sizes, solve_s)?;
+    let eval_seed = params::eval_seeds(args, &mut rep)?;
+    let (dump, load, trace) = (
+        params::raw(args, "dump"),
+        params::raw(args, "load"),
+        params::raw(args, "trace"),
+    );
+    anyhow::ensure!(
+        load.is_none() || !carry_check,
+        "--param load: not with carry_check (no previous solve)"
+    );
+    // Loaded policies: the chains rebuilt from the same seeds, no solving.
+    let (budgets, fresh) = match load {
+        Some(_) => (vec![1e-3], true),
+        None => (budgets, false),
+    };
     // Independent solves: the chain's samples (and controls, observation
-    // points) from seed + r; the evaluation's random numbers stay `seed`.
+    // points) from seed + r; the evaluation's random numbers from
+    // `eval_seed` (by default `seed` for every solve).
     for r in 0..solves as u64 {
         // The previous size's continuous outcomes (walls, open) in this
         // solve: same seed and period, so the returns pair episode by episode.
         let mut before: size_row::Before = None;
-        two_d(&sizes, &budgets, &s, args.seed + r, false, |z| {
+        two_d(&sizes, &budgets, &s, args.seed + r, fresh, |z| {
+            let loaded = load
+                .as_ref()
+                .map(|d| trace::load(d, r, z.cp, z.sol))
+                .transpose()?;
+            let z = &Sized {
+                sol: loaded.as_ref().unwrap_or(z.sol),
+                ..*z
+            };
             let cp = z.cp;
             if let (true, Some(prev)) = (carry_check, z.prev) {
                 let rows = carry::diagnose(prev, (cp, z.sol), z.carried_b0, &s, runs, args.seed);
@@ -517,11 +546,17 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
                     rep.results.push(r);
                 }
             }
+            if let Some(dir) = &dump {
+                let path = trace::policy_path(dir, r, cp.n_chain());
+                let w = z.sol.policy.write(&path);
+                w.with_context(|| format!("--param dump: writing {}", path.display()))?;
+            }
             let e = size_row::Eval {
                 runs,
-                seed: args.seed,
+                seed: eval_seed(args.seed, r),
                 open,
                 solve: r,
+                trace: trace.clone(),
             };
             let row = size_row::size_row(z, &s, &e, &mut before)?;
             rep.results.push(row);
@@ -548,32 +583,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         })?;
         prog.tick();
     }
-    for (n, r, pm) in PAPER_STATES {
-        rep.paper.push(
-            Row::new("sarsop-200s")
-                .text("problem", "2-D")
-                .int("states", n as u64)
-                .num("solve_s", 200.0)
-                .num("reward", r)
-                .num("reward_ci95", pm),
-        );
-    }
-    for (t, r, pm) in PAPER_ANYTIME {
-        rep.paper.push(
-            Row::new("anytime")
-                .text("problem", "2-D")
-                .int("states", 150)
-                .num("solve_s", t)
-                .num("reward", r)
-                .num("reward_ci95", pm),
-        );
-    }
-    rep.notes.push("continuous: the same policy's discounted return in the continuous problem (Euler-Maruyama truth, real-valued y, belief over the chain's states by the chain filter, argmax over the alpha-vectors each period; ±1000 by the true x); goal_frac: episodes declared inside the goal; same seeds and start draws at every size".into());
-    rep.notes.push("reward: the discrete POMDP's discounted return from b0 over seeded runs; the paper's ± is listed under reward_ci95 (its kind of interval is not stated)".into());
-    rep.notes.push(
-        "solve_s: solver wall-clock on a shared, loaded 2-core machine (the paper: SARSOP, 200 s)"
-            .into(),
-    );
+    paper::append(&mut rep);
     Ok(rep)
 }
 

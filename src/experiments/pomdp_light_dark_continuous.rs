@@ -112,6 +112,20 @@ pub struct Outcome {
     /// Each episode's discounted return, in run order (for paired
     /// differences between policies evaluated with the same seed).
     pub returns: Vec<f64>,
+    /// Each declared episode's end, in run order (for the trace).
+    pub ends: Vec<End>,
+}
+
+/// Where one episode declared: the decision, the truth, the belief's mean,
+/// its most probable state and its mass on the states inside the goal.
+#[derive(Clone, Debug, PartialEq)]
+pub struct End {
+    pub run: usize,
+    pub step: usize,
+    pub x: Vec<f64>,
+    pub belief_mean: Vec<f64>,
+    pub map_state: usize,
+    pub goal_mass: f64,
 }
 
 impl Outcome {
@@ -178,6 +192,7 @@ pub fn evaluate(
     let mut x = vec![0.0; d];
     let mut y = vec![0.0; d];
     let mut ret = Vec::with_capacity(runs);
+    let mut ends = Vec::new();
     let (mut in_goal, mut declared) = (0usize, 0usize);
     let (mut dist, mut berr) = (0.0, 0.0);
     let (mut lit, mut wall) = (0usize, 0usize);
@@ -218,7 +233,7 @@ pub fn evaluate(
         b.copy_from_slice(&cp.pomdp.start);
         let (mut total, mut disc) = (0.0, 1.0);
         let mut seen_light = p.obs.light.contains(&x);
-        for _ in 0..horizon {
+        for step in 0..horizon {
             let a = policy.action(&b);
             let Some(u) = cp.control(a) else {
                 declared += 1;
@@ -234,6 +249,18 @@ pub fn evaluate(
                     *yi = (0..cp.n_chain()).map(|z| b[z] * cp.state(z)[i]).sum();
                 }
                 berr += inf_norm(&y, &x);
+                let map_state = (0..nc).fold(0, |m, z| if b[z] > b[m] { z } else { m });
+                ends.push(End {
+                    run,
+                    step,
+                    x: x.clone(),
+                    belief_mean: y.clone(),
+                    map_state,
+                    goal_mass: (0..nc)
+                        .filter(|&z| p.goal.contains(cp.state(z)))
+                        .map(|z| b[z])
+                        .sum(),
+                });
                 let hit = p.goal.contains(&x);
                 in_goal += usize::from(hit);
                 total += disc * if hit { 1000.0 } else { -1000.0 };
@@ -307,6 +334,7 @@ pub fn evaluate(
         wall_frac: wall as f64 / n,
         crash_frac: crashed as f64 / n,
         returns: ret,
+        ends,
     }
 }
 

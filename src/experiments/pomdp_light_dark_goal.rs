@@ -72,6 +72,58 @@ fn dist2(a: &[f64], b: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::RngExt;
+
+    #[test]
+    fn cells_of_random_states_match_a_monte_carlo_estimate_of_the_goals_share() {
+        // Irregular states as the 2-D chain has them (uniform samples, a
+        // few inside and on the border of the goal): each cell's share of
+        // the goal estimated independently from uniform random points
+        // (not the midpoint grid), within 4.5 binomial standard errors
+        // plus the grid's own error (a cell's boundary cut by the grid).
+        let mut rng = crate::rng::stream(11, 0);
+        let goal = Boxes(vec![(vec![1.5, -1.5], 0.2)]);
+        let mut pts: Vec<f64> = vec![1.5, -1.5, 1.341, -1.554, 1.69, -1.31];
+        for _ in 0..57 {
+            pts.push(rng.random_range(-2.0..2.0));
+            pts.push(rng.random_range(-2.0..2.0));
+        }
+        let n = pts.len() / 2;
+        let r = cell_rewards(&pts, 2, &goal, -2.0, 2.0, 400);
+        let (mut inside, mut count) = (vec![0usize; n], vec![0usize; n]);
+        for _ in 0..400_000 {
+            let x = [rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0)];
+            let near = (0..n)
+                .min_by(|&a, &b| {
+                    dist2(&pts[2 * a..2 * a + 2], &x).total_cmp(&dist2(&pts[2 * b..2 * b + 2], &x))
+                })
+                .unwrap();
+            count[near] += 1;
+            inside[near] += usize::from(goal.contains(&x));
+        }
+        let mut partial = 0;
+        for i in 0..n {
+            let f = inside[i] as f64 / count[i] as f64;
+            let se = (f * (1.0 - f) / count[i] as f64).sqrt();
+            let cell = (r[i] / 1000.0 + 1.0) / 2.0;
+            assert!(
+                (cell - f).abs() < 4.5 * se + 0.01,
+                "state {i} ({}, {}): grid share {cell}, Monte Carlo {f} ± {se}",
+                pts[2 * i],
+                pts[2 * i + 1]
+            );
+            partial += usize::from(f > 0.05 && f < 0.95);
+        }
+        // The states near the goal's border stand for regions partly
+        // outside it: their reward is well below the point reward's 1000.
+        assert!(partial >= 2, "{partial} cells straddle the goal");
+        assert!(
+            r[1] < 600.0 && r[2] < 600.0,
+            "border states: {} {}",
+            r[1],
+            r[2]
+        );
+    }
 
     #[test]
     fn cells_of_a_regular_grid_average_the_reward_exactly() {

@@ -91,6 +91,26 @@ pub const PARAMS: &[ParamDoc] = &[
         "2-D solver: every k-th trial follows the lower bound's plan instead of the upper bound (0: never)",
     ),
     p(
+        "eval_seed",
+        "common",
+        "2-D evaluations: common (every solve from seed, so one draw shifts all solves) or per_solve (solve r from seed + r; sizes stay paired within a solve)",
+    ),
+    p(
+        "dump",
+        "(none)",
+        "write every 2-D solve's policy to DIR/solve<r>-n<states>.policy",
+    ),
+    p(
+        "load",
+        "(none)",
+        "read every 2-D policy from DIR/solve<r>-n<states>.policy (as dump writes them) instead of solving",
+    ),
+    p(
+        "trace",
+        "(none)",
+        "append each 2-D policy's declared continuous episodes to this CSV file",
+    ),
+    p(
         "kappa_drift",
         "1",
         "kappa_f of the 2-D chain's holding time r^2/(kappa_F |FF'| + kappa_f r |f|)",
@@ -202,6 +222,24 @@ pub fn budgets(
         .collect())
 }
 
+/// `--param eval_seed=common|per_solve`: the evaluation seed of solve `r`
+/// — `seed` for every solve (common random numbers across solves: a lucky
+/// or unlucky draw moves every solve's figure together, and the spread
+/// over solves does not see it), or `seed + r` (independent per solve, so
+/// the spread over solves includes the evaluation's noise). Within a solve
+/// every size uses the same seed either way, so sizes still pair.
+pub fn eval_seeds(
+    args: &crate::experiments::ExperimentArgs,
+    rep: &mut crate::experiments::ExperimentReport,
+) -> anyhow::Result<fn(u64, u64) -> u64> {
+    let per_solve = word_choice(args, rep, "eval_seed", "common", "per_solve")?;
+    Ok(if per_solve {
+        |seed, r| seed.wrapping_add(r)
+    } else {
+        |seed, _| seed
+    })
+}
+
 /// `--param edge=wall|cliff`: true for `cliff`.
 pub fn cliff(
     args: &crate::experiments::ExperimentArgs,
@@ -266,6 +304,12 @@ mod tests {
             budgets(&args(&[("budget", "per_state")]), &mut rep, &[75, 150], 2.0).unwrap(),
             vec![2.0, 4.0]
         );
+        let common = eval_seeds(&args(&[]), &mut rep).unwrap();
+        assert_eq!(rep.params["eval_seed"], "common");
+        assert_eq!((common(7, 0), common(7, 3)), (7, 7));
+        let own = eval_seeds(&args(&[("eval_seed", "per_solve")]), &mut rep).unwrap();
+        assert_eq!(rep.params["eval_seed"], "per_solve");
+        assert_eq!((own(7, 0), own(7, 3)), (7, 10));
         let e = rows(&args(&[("rows", "moments")]), &mut rep).unwrap_err();
         assert_eq!(
             e.to_string(),

@@ -17,6 +17,8 @@ pub struct Eval {
     pub open: bool,
     /// Which independent solve this is.
     pub solve: u64,
+    /// Append the main truth's declared episodes to this CSV file.
+    pub trace: Option<String>,
 }
 
 /// The previous size's outcomes (main truth, open box) in this solve.
@@ -30,6 +32,10 @@ pub fn size_row(z: &Sized<'_>, s: &Setting, e: &Eval, before: &mut Before) -> Re
     let tc = std::time::Instant::now();
     let c = continuous_value(cp, &z.sol.policy, s, 2, e.runs, e.seed, s.truth());
     let continuous_s = tc.elapsed().as_secs_f64();
+    if let Some(path) = &e.trace {
+        let goal = super::goal_2d();
+        super::trace::append(path, e.solve, cp, &c, |x| goal.contains(x))?;
+    }
     let on_chain = continuous_value(cp, &z.sol.policy, s, 2, e.runs, e.seed, Truth::Chain);
     let c_open = e.open.then(|| {
         continuous_value(

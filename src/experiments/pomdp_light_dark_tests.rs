@@ -339,6 +339,7 @@ fn paired_difference_is_the_mean_and_standard_error_of_the_episode_differences()
         wall_frac: 0.0,
         crash_frac: 0.0,
         returns: r,
+        ends: Vec::new(),
     };
     let a = mk(vec![5.0, 1.0, 10.0, 4.0]);
     let b = mk(vec![4.0, 1.0, 7.0, 4.0]);
@@ -402,4 +403,60 @@ fn one_d_grid_is_regular_on_its_interval_with_a_uniform_start() {
         ..setting()
     };
     assert!(one_d(&one).is_err());
+}
+
+#[test]
+fn per_solve_evaluation_seeds_change_the_simulations_and_nothing_else() {
+    let s = Setting {
+        rows: Rows::Moment,
+        period: 0.5,
+        ..setting()
+    };
+    let mut rep = ExperimentReport::new("t");
+    let per_solve = vec![("eval_seed".to_string(), "per_solve".to_string())];
+    let args = |params| ExperimentArgs {
+        params,
+        ..ExperimentArgs::default()
+    };
+    let common = params::eval_seeds(&args(vec![]), &mut rep).unwrap();
+    let own = params::eval_seeds(&args(per_solve), &mut rep).unwrap();
+    let key = |r: &Row, k: &str| r.get(k).unwrap_or_else(|| panic!("column {k}"));
+    // Two sizes of one solve, each evaluated as solve 0 and as solve 2
+    // under both choices, from the same solved policies.
+    let mut rows = Vec::new();
+    two_d(&[20, 40], &[1.0], &s, 5, false, |z| {
+        let mut out = Vec::new();
+        for (pick, r) in [(common, 0), (own, 0), (common, 2), (own, 2)] {
+            let e = size_row::Eval {
+                runs: 60,
+                seed: pick(1, r),
+                open: false,
+                solve: r,
+                trace: None,
+            };
+            out.push(size_row::size_row(z, &s, &e, &mut None)?);
+        }
+        rows.push(out);
+        Ok(())
+    })
+    .expect("two sizes");
+    for out in &rows {
+        // The solve is the same object: its bounds are read, not re-made.
+        for r in &out[1..] {
+            for k in ["lower_b0", "upper_b0", "trials"] {
+                assert_eq!(key(r, k), key(&out[0], k), "{k}");
+            }
+        }
+        // Solve 0 keeps the common seed under either choice: identical rows.
+        for k in ["reward", "reward_se", "continuous", "chain_truth"] {
+            assert_eq!(key(&out[0], k), key(&out[1], k), "{k}");
+            assert_eq!(key(&out[0], k), key(&out[2], k), "{k}");
+        }
+        // Solve 2 under per_solve: other random numbers in every
+        // simulation (the chain's, the continuous truth's, the chain truth's).
+        for k in ["reward", "continuous", "chain_truth"] {
+            assert_ne!(key(&out[3], k), key(&out[2], k), "{k}");
+        }
+    }
+    assert_eq!(rows.len(), 2);
 }
