@@ -7,8 +7,8 @@
 
 use super::assoc::Association;
 use super::assoc_audit::AuditCounts;
-use super::diag_tests::model;
-use super::driver::{pick_one_per_scan, run_carpark_with, Pick, RunOptions};
+use super::diag_tests::{curve_no_gaps, model};
+use super::driver::{run_carpark_with, Pick, RunOptions};
 use super::ekf::EkfSlam;
 use super::fastslam::{FastSlam, Version};
 use super::implicit::ImplicitSlam;
@@ -16,39 +16,12 @@ use super::implicit_rb::ImplicitRbSlam;
 use super::implicit_refine::ImplicitRefineSlam;
 use super::particles::SlamParticles;
 use super::{SlamFilter, SlamModel};
-use crate::carpark::{CarPark, CarParkConfig};
+use crate::carpark::CarPark;
 use crate::geometry::Pose;
 use crate::mcl::newton::NewtonSettings;
-use crate::victoria::{OdometrySample, Recording};
 use beliefbus_core::rng::stream;
 
 const M: usize = 5;
-
-/// A 20 s curve at 3 m/s with scans every 0.2 s, no gaps.
-fn carpark() -> (CarPark, Vec<Pick>) {
-    let n = 800;
-    let rec = Recording {
-        odometry: (0..n)
-            .map(|i| OdometrySample {
-                time: i as f64 * 0.025,
-                speed: 3.0,
-                steering: 0.05,
-            })
-            .collect(),
-        laser_times: (0..100).map(|i| 0.01 + i as f64 * 0.2).collect(),
-    };
-    let cfg = CarParkConfig {
-        start_time: 0.0,
-        duration: 20.0,
-        gap_every: 0.0,
-        motion: model().motion,
-        truth_noise: 1.0,
-        ..Default::default()
-    };
-    let cp = CarPark::generate(&rec, &cfg, &mut stream(3, 0)).unwrap();
-    let picks = pick_one_per_scan(&cp, &mut stream(4, 0));
-    (cp, picks)
-}
 
 /// (filter, maps it scores: M for a particle filter, 1 for EKF-SLAM).
 fn filters(m: SlamModel) -> Vec<(Box<dyn SlamFilter>, usize)> {
@@ -80,7 +53,7 @@ fn run(f: &mut dyn SlamFilter, cp: &CarPark, picks: &[Pick], known: bool) -> Vec
 /// (returns − distinct landmarks) per map, and none is wrong.
 #[test]
 fn known_association_scores_no_error_and_closed_gates_miss_every_resighting() {
-    let (cp, picks) = carpark();
+    let (cp, picks) = curve_no_gaps();
     let mut seen: Vec<usize> = picks.iter().map(|p| p.landmark).collect();
     seen.sort_unstable();
     seen.dedup();
@@ -113,7 +86,7 @@ fn known_association_scores_no_error_and_closed_gates_miss_every_resighting() {
 /// estimates with and without the truth are the same to the last bit.
 #[test]
 fn scoring_leaves_the_estimates_unchanged() {
-    let (cp, picks) = carpark();
+    let (cp, picks) = curve_no_gaps();
     for ((mut a, _), (mut b, _)) in filters(model()).into_iter().zip(filters(model())) {
         let with = run(a.as_mut(), &cp, &picks, false);
         // Without the truth: the same run stepped by hand, never told it.

@@ -1,7 +1,7 @@
 //! The ablation and diagnostic hooks: imposed (known) association, ancestor
 //! counts and the belief's position spread.
 
-use super::driver::{pick_one_per_scan, run_carpark_with, RunOptions};
+use super::driver::{pick_one_per_scan, run_carpark_with, Pick, RunOptions};
 use super::ekf::EkfSlam;
 use super::fastslam::{FastSlam, Version};
 use super::implicit::ImplicitSlam;
@@ -33,6 +33,22 @@ fn straight(secs: f64) -> Recording {
     }
 }
 
+/// A 20 s curve at 3 m/s with scans every 0.2 s and no gaps: its car park
+/// (data stream 3) and one return picked per scan (stream 4).
+pub(super) fn curve_no_gaps() -> (CarPark, Vec<Pick>) {
+    let cfg = CarParkConfig {
+        start_time: 0.0,
+        duration: 20.0,
+        gap_every: 0.0,
+        motion: model().motion,
+        truth_noise: 1.0,
+        ..Default::default()
+    };
+    let cp = CarPark::generate(&straight(20.0), &cfg, &mut stream(3, 0)).unwrap();
+    let picks = pick_one_per_scan(&cp, &mut stream(4, 0));
+    (cp, picks)
+}
+
 /// The Ute with a thousandth of the default control noise, 15 m laser.
 pub(super) fn model() -> SlamModel {
     let d = MotionNoise::default();
@@ -55,17 +71,7 @@ pub(super) fn model() -> SlamModel {
 /// decides.
 #[test]
 fn imposed_association_gives_one_landmark_per_true_landmark_in_order() {
-    let rec = straight(20.0);
-    let cfg = CarParkConfig {
-        start_time: 0.0,
-        duration: 20.0,
-        gap_every: 0.0,
-        motion: model().motion,
-        truth_noise: 1.0,
-        ..Default::default()
-    };
-    let cp = CarPark::generate(&rec, &cfg, &mut stream(3, 0)).unwrap();
-    let picks = pick_one_per_scan(&cp, &mut stream(4, 0));
+    let (cp, picks) = curve_no_gaps();
     let mut order: Vec<usize> = Vec::new();
     for p in &picks {
         if !order.contains(&p.landmark) {
