@@ -21,8 +21,7 @@ pub fn policy_path(dir: &str, r: u64, n: usize) -> PathBuf {
 /// the file does not hold, become NaN.
 pub fn load(dir: &str, r: u64, cp: &ChainPomdp, sol: &Solution) -> Result<Solution> {
     let path = policy_path(dir, r, cp.n_chain());
-    let policy =
-        AlphaPolicy::read(&path).with_context(|| format!("--param load: {}", path.display()))?;
+    let policy = AlphaPolicy::read(&path).context("--param load")?;
     anyhow::ensure!(
         policy.n_states == cp.pomdp.n_states() && policy.n_actions == cp.pomdp.n_actions(),
         "--param load: {} has {} states and {} actions, the rebuilt problem {} and {}",

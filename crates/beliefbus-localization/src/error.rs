@@ -15,11 +15,12 @@ pub enum LocalizationError {
     #[error("Victoria Park data not found: {path} does not exist. Get the data set from {DATA_SOURCE}, then pass --param data_dir=DIR or set BELIEFBUS_VICTORIA_PARK=DIR")]
     DataMissing { path: String },
     /// A file that exists could not be read.
-    #[error("reading {path}: {source}")]
+    #[error("reading {path}: {cause}")]
     Io {
         path: String,
-        #[source]
-        source: std::io::Error,
+        /// In the message, not returned by `source()`: a chained report
+        /// (`{:#}`) would print it twice.
+        cause: std::io::Error,
     },
     /// A malformed line in a data file.
     #[error("{file} line {line}: {msg}")]

@@ -163,9 +163,9 @@ pub(crate) fn read(dir: &Path, name: &str) -> Result<String, LocalizationError> 
             path: p.display().to_string(),
         });
     }
-    std::fs::read_to_string(&p).map_err(|source| LocalizationError::Io {
+    std::fs::read_to_string(&p).map_err(|cause| LocalizationError::Io {
         path: p.display().to_string(),
-        source,
+        cause,
     })
 }
 

@@ -30,10 +30,12 @@ pub struct AlphaPolicy {
 /// Why a policy file could not be read.
 #[derive(Debug, Error)]
 pub enum PolicyError {
-    #[error("{file}: {source}")]
+    #[error("{file}: {cause}")]
     Io {
         file: String,
-        source: std::io::Error,
+        /// In the message, not returned by `source()`: a chained report
+        /// (`{:#}`) would print it twice.
+        cause: std::io::Error,
     },
     #[error("{file}:{line}: {message}")]
     Format {
@@ -120,9 +122,9 @@ impl AlphaPolicy {
 
     pub fn read(path: &Path) -> Result<Self, PolicyError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| PolicyError::Io {
+        let text = std::fs::read_to_string(path).map_err(|cause| PolicyError::Io {
             file: file.clone(),
-            source,
+            cause,
         })?;
         Self::from_text(&file, &text)
     }

@@ -96,11 +96,12 @@ pub struct SolveStats {
 pub enum PolicyError {
     #[error("no policy file at {path}: solve the problem first")]
     Missing { path: PathBuf },
-    #[error("cannot read or write policy file {path}: {source}")]
+    #[error("cannot read or write policy file {path}: {cause}")]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        /// In the message, not returned by `source()`: a chained report
+        /// (`{:#}`) would print it twice.
+        cause: std::io::Error,
     },
     #[error("policy file {path} is not a valid policy: {detail}")]
     Parse { path: PathBuf, detail: String },
@@ -190,9 +191,9 @@ impl GridPolicy {
             path: path.to_path_buf(),
             detail: e.to_string(),
         })?;
-        let io = |source| PolicyError::Io {
+        let io = |cause| PolicyError::Io {
             path: path.to_path_buf(),
-            source,
+            cause,
         };
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(io)?;
@@ -209,10 +210,10 @@ impl GridPolicy {
                     path: path.to_path_buf(),
                 })
             }
-            Err(source) => {
+            Err(cause) => {
                 return Err(PolicyError::Io {
                     path: path.to_path_buf(),
-                    source,
+                    cause,
                 })
             }
         };

@@ -144,9 +144,9 @@ impl Svg {
 
     /// Write the document to `path`.
     pub fn write(&self, path: &str) -> Result<(), LocalizationError> {
-        std::fs::write(path, self.finish()).map_err(|source| LocalizationError::Io {
+        std::fs::write(path, self.finish()).map_err(|cause| LocalizationError::Io {
             path: path.to_string(),
-            source,
+            cause,
         })
     }
 }

@@ -428,7 +428,7 @@ pub fn run(
     if let Some(path) = &trace_path {
         std::fs::write(path, &trace).map_err(|e| LocalizationError::Io {
             path: path.clone(),
-            source: e,
+            cause: e,
         })?;
     }
     if let Some(path) = &per_run_path {

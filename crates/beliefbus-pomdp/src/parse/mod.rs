@@ -37,10 +37,12 @@ use thiserror::Error;
 #[derive(Debug, Error)]
 pub enum ParseError {
     /// The file could not be read.
-    #[error("{file}: {source}")]
+    #[error("{file}: {cause}")]
     Io {
         file: String,
-        source: std::io::Error,
+        /// In the message, not returned by `source()`: a chained report
+        /// (`{:#}`) would print it twice.
+        cause: std::io::Error,
     },
     /// A token other than the grammar allows.
     #[error("{file}:{line}: expected {expected}, found {found}")]
@@ -70,8 +72,8 @@ pub enum ParseError {
     #[error("{file}: missing {what}")]
     Missing { file: String, what: String },
     /// The parsed model failed validation.
-    #[error("{file}: {source}")]
-    Model { file: String, source: ModelError },
+    #[error("{file}: {cause}")]
+    Model { file: String, cause: ModelError },
 }
 
 impl ParseError {
@@ -95,9 +97,9 @@ pub fn parse_str(file: &str, text: &str) -> Result<Pomdp, ParseError> {
 /// Reads and parses a `.pomdp` file.
 pub fn parse_file(path: &Path) -> Result<Pomdp, ParseError> {
     let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| ParseError::Io {
+    let text = std::fs::read_to_string(path).map_err(|cause| ParseError::Io {
         file: file.clone(),
-        source,
+        cause,
     })?;
     parse_str(&file, &text)
 }

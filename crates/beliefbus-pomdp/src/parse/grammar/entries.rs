@@ -250,7 +250,7 @@ impl Parser<'_> {
             obs.into_matrices(na),
             reward,
         )
-        .map_err(|source| ParseError::Model { file, source })?;
+        .map_err(|cause| ParseError::Model { file, cause })?;
         let [s, a, o] = self.spaces.map(|sp| sp.expect("checked").names);
         (p.state_names, p.action_names, p.obs_names) = (s, a, o);
         Ok(p)
