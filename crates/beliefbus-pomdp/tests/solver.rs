@@ -28,6 +28,16 @@ fn assert_ordered(reports: &[Progress]) {
     }
 }
 
+/// The solver's bounds contain exact value iteration's bracket [lo, hi].
+fn assert_brackets(sol: &Solution, lo: f64, hi: f64, what: &str) {
+    assert!(
+        sol.lower <= lo + 1e-9 && sol.upper >= hi - 1e-9,
+        "{what}solver [{}, {}] vs exact [{lo}, {hi}]",
+        sol.lower,
+        sol.upper
+    );
+}
+
 /// Published V*(b0) of tiger.95 (exact value iteration with pruning,
 /// bracketed to ±5e-10; data/pomdp/README.md).
 const TIGER_EXACT: f64 = 19.3713683745;
@@ -43,7 +53,7 @@ fn tiger_matches_exact_value_iteration() {
     let (sol, reports) = solve_to(&p, 1e-3);
     assert!(sol.converged);
     assert!(sol.upper - sol.lower <= 1e-3);
-    assert!(sol.lower <= lo + 1e-9 && sol.upper >= hi - 1e-9, "{sol:?}");
+    assert_brackets(&sol, lo, hi, "");
     assert_ordered(&reports);
 }
 
@@ -53,12 +63,7 @@ fn noisy_two_state_problem_matches_exact_value_iteration() {
     let (lo, hi, exact) = exact_two_state(&p, 1e-7);
     let (sol, reports) = solve_to(&p, 1e-4);
     assert!(sol.converged && sol.upper - sol.lower <= 1e-4, "{sol:?}");
-    assert!(
-        sol.lower <= lo + 1e-9 && sol.upper >= hi - 1e-9,
-        "solver [{}, {}] vs exact [{lo}, {hi}]",
-        sol.lower,
-        sol.upper
-    );
+    assert_brackets(&sol, lo, hi, "");
     assert_ordered(&reports);
     // the first action is the exact optimum's at b0
     let b = p.start[1];
@@ -96,12 +101,7 @@ fn lower_following_trials_keep_the_bounds_around_exact_value_iteration() {
                 sol.converged && sol.upper - sol.lower <= precision,
                 "every {every}: {sol:?}"
             );
-            assert!(
-                sol.lower <= lo + 1e-9 && sol.upper >= hi - 1e-9,
-                "every {every}: solver [{}, {}] vs exact [{lo}, {hi}]",
-                sol.lower,
-                sol.upper
-            );
+            assert_brackets(&sol, lo, hi, &format!("every {every}: "));
             assert_ordered(&reports);
         }
     }
