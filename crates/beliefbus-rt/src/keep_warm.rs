@@ -148,23 +148,32 @@ mod tests {
         let w = KeepWarm::start(&[core]);
         assert!(w.warnings().is_empty(), "{:?}", w.warnings());
         let name = format!("keep-warm-{core}");
+        // The busy thread computes until the measurement is over, however
+        // late a loaded machine wakes the measuring thread: a window that
+        // outlasted it would count the spinner's time on an idle core.
+        let running = Arc::new(AtomicBool::new(false));
+        let done = Arc::new(AtomicBool::new(false));
+        let (r, d) = (running.clone(), done.clone());
         let busy = std::thread::spawn(move || {
             crate::sched::pin_to_core(core).unwrap();
             // SAFETY: setpriority on the calling thread (its tid).
             let tid = unsafe { libc::gettid() } as libc::id_t;
             assert_eq!(unsafe { libc::setpriority(libc::PRIO_PROCESS, tid, 19) }, 0);
-            let t0 = Instant::now();
+            r.store(true, Ordering::Relaxed);
             let mut x = 0u64;
-            while t0.elapsed() < Duration::from_millis(400) {
+            while !d.load(Ordering::Relaxed) {
                 x = x.wrapping_mul(6364136223846793005).wrapping_add(1);
             }
             x
         });
-        // Measure once the busy thread is surely running.
+        while !running.load(Ordering::Relaxed) {
+            std::thread::sleep(Duration::from_millis(1));
+        }
         std::thread::sleep(Duration::from_millis(50));
         let (c0, t0) = (thread_cpu_ns(&name), Instant::now());
         std::thread::sleep(Duration::from_millis(300));
         let (c1, t1) = (thread_cpu_ns(&name), Instant::now());
+        done.store(true, Ordering::Relaxed);
         busy.join().unwrap();
         let share = (c1 - c0) as f64 / (t1 - t0).as_nanos() as f64;
         assert!(
