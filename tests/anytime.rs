@@ -9,13 +9,14 @@ use beliefbus::ipc::{
     belief_status, cleanup, Belief, Bus, BusConfig, Control, StageKind, StageStats, Subscriber,
 };
 use serde_json::Value;
-use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 mod launcher_support;
+mod scratch_support;
 use launcher_support::{pid_of, root, Run, PATIENCE};
+use scratch_support::Scratch;
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
@@ -43,10 +44,9 @@ impl Drop for Stages {
     }
 }
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("beliefbus-anytime-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// A scratch file, removed with its directory when the test ends.
+fn tmp(name: &str) -> Scratch {
+    Scratch::new("anytime", name)
 }
 
 #[test]

@@ -10,7 +10,9 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 mod launcher_support;
+mod scratch_support;
 use launcher_support::{root, Run};
+use scratch_support::Scratch;
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
@@ -18,10 +20,9 @@ fn exe() -> &'static str {
     env!("CARGO_BIN_EXE_beliefbus")
 }
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("beliefbus-test-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// A scratch file, removed with its directory when the test ends.
+fn tmp(name: &str) -> Scratch {
+    Scratch::new("test", name)
 }
 
 /// Every file under /dev/shm and iceoryx2's root path that starts with `prefix`.
@@ -41,10 +42,9 @@ fn run(args: &[&str]) -> Output {
 /// not depend on the working directory.
 fn run_elsewhere(args: &[&str]) -> Output {
     let dir = tmp("cwd");
-    std::fs::create_dir_all(&dir).unwrap();
     Command::new(exe())
         .args(args)
-        .current_dir(dir)
+        .current_dir(dir.dir())
         .output()
         .unwrap()
 }

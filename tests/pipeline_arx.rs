@@ -8,16 +8,17 @@
 use serde_json::Value;
 use std::process::Command;
 
+mod scratch_support;
+use scratch_support::Scratch;
+
 #[test]
 fn the_arx_scenario_runs_its_own_backends_and_reports_detections() {
-    let dir = std::env::temp_dir().join(format!("beliefbus-arx-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let report = dir.join("arx.json");
+    let report = Scratch::new("arx", "arx.json");
     let o = Command::new(env!("CARGO_BIN_EXE_beliefbus"))
         .args(["run", "--scenario", "arx", "--duration", "4", "--quiet"])
         .args(["--set", "arx.rho=0.005", "--report"])
         .arg(&report)
-        .current_dir(&dir)
+        .current_dir(report.dir())
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);

@@ -5,9 +5,12 @@
 //! MPPI stays selectable with `--set control.backend=mppi`.
 
 use serde_json::Value;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 use std::sync::Mutex;
+
+mod scratch_support;
+use scratch_support::Scratch;
 
 /// Pipelines pin themselves to the same cores: one at a time.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
@@ -20,10 +23,9 @@ fn run(args: &[&str]) -> Output {
         .unwrap()
 }
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("beliefbus-ctl-test-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// A scratch file, removed with its directory when the test ends.
+fn tmp(name: &str) -> Scratch {
+    Scratch::new("ctl-test", name)
 }
 
 fn run_report(name: &str, extra: &[&str]) -> Value {

@@ -15,14 +15,15 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 mod launcher_support;
+mod scratch_support;
 use launcher_support::{pid_of, root, Run, PATIENCE};
+use scratch_support::Scratch;
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("beliefbus-rel-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// A scratch file, removed with its directory when the test ends.
+fn tmp(name: &str) -> Scratch {
+    Scratch::new("rel", name)
 }
 
 fn shm_files(prefix: &str) -> Vec<PathBuf> {

@@ -8,13 +8,14 @@
 //!
 //! Pipelines run one at a time (they pin themselves to the same cores).
 
+mod scratch_support;
 mod sensor_support;
+use scratch_support::Scratch;
 
 use beliefbus::ipc::sensor_api::{monotonic_now_ns, ControlSubscriber};
 use beliefbus::ipc::{Belief, Bus, BusConfig, Observation, SensorSample};
 use sensor_support::*;
 use serde_json::Value;
-use std::path::PathBuf;
 use std::process::Command;
 use std::sync::Mutex;
 use std::time::Duration;
@@ -23,10 +24,9 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 const INSTANCE: &str = "ship"; // run.instance of configs/default.toml
 
-fn report_path(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("beliefbus-sensor-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// A report file, removed with its directory when the test ends.
+fn report_path(name: &str) -> Scratch {
+    Scratch::new("sensor", name)
 }
 
 /// `beliefbus run configs/default.toml --sensor external` under `prefix`,

@@ -26,10 +26,9 @@ fn small(path: &std::path::Path, sigma: f64) -> InventoryParams {
     }
 }
 
+/// A policy file directly in the temp dir (each test removes it at its end).
 fn temp(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("beliefbus-inv-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d.join("policy.json")
+    std::env::temp_dir().join(format!("beliefbus-inv-{}-{name}.json", std::process::id()))
 }
 
 fn filter_ctx(sys: &InventorySystem) -> FilterContext {
