@@ -52,7 +52,7 @@ mod json;
 mod render;
 
 pub use json::{
-    AccuracyReport, ChainReport, ControlReport, FilterReport, HopJson, HostReport,
+    AccuracyReport, ChainReport, ControlReport, FilterReport, HopJson, HostReport, MissReport,
     ObservationBooks, RecoveryReport, RecoverySummary, RunReport, SharedMemoryReport, StageReport,
     StageSupervision, StreamsReport, SupervisorReport, REPORT_SCHEMA_VERSION,
 };
@@ -114,6 +114,9 @@ pub struct ReportInput {
     pub accuracy: Accuracy,
     pub files_removed: usize,
     pub files_left: usize,
+    /// When the run started, CLOCK_MONOTONIC ns (0: unknown): the origin
+    /// of the times of the stages' misses.
+    pub run_start_ns: u64,
 }
 
 impl ReportInput {
