@@ -22,8 +22,10 @@ pub struct Miss {
     pub start_ns: u64,
     /// Wall-clock time from start to end (ns), above the budget.
     pub wall_ns: u64,
-    /// The thread's CPU time over the message (ns), measured from its last
-    /// start mark; `None` without any mark.
+    /// The thread's CPU time (ns) from the last start mark to the record
+    /// of the message; `None` without any mark. A stage that records after
+    /// publishing its output (its end stamp) counts the publishing here
+    /// too, so this can exceed `wall_ns`.
     pub cpu_ns: Option<u64>,
     /// The thread's context switches (voluntary + involuntary) over the
     /// message; `None` without a start mark or when unreadable.

@@ -152,7 +152,9 @@ pub struct MissReport {
     pub t_ns: u64,
     /// Wall-clock time of the message, µs (above `budget_us`).
     pub wall_us: f64,
-    /// The thread's CPU time over it, µs (null: not measured).
+    /// The thread's CPU time from the stage's start mark to its record of
+    /// the message, µs: it can include publishing the output, after the
+    /// end of `wall_us` (null: not measured).
     pub cpu_us: Option<f64>,
     /// The thread's context switches over it (null: not measured).
     pub switches: Option<u64>,
