@@ -27,9 +27,17 @@
 //! (`crate::host`) say which of the two. A miss with a switch was taken by
 //! another thread of this machine (a higher-priority stage on the core, a
 //! kernel thread) and is the pipeline's own business.
+//!
+//! Which misses, when: the most recent misses are kept in a fixed ring
+//! ([`MissLog`], [`Budget::miss_log`]) with their start time on the
+//! stage's clock, wall and thread CPU time, context switches and kind;
+//! older ones are counted, never silently lost. Only a miss reads the
+//! thread's clocks: the on-time path stays a histogram record and a
+//! compare.
 
 use super::clock::{thread_cpu_ns, thread_switches};
 use super::hist::LatencyHist;
+use super::miss_log::{Miss, MissLog};
 
 /// Compute-time accounting against a budget.
 #[derive(Clone, Debug)]
@@ -45,6 +53,8 @@ pub struct Budget {
     compute: LatencyHist,
     response: LatencyHist,
     late: u64,
+    /// The most recent misses.
+    log: MissLog,
 }
 
 impl Budget {
@@ -60,35 +70,77 @@ impl Budget {
             compute: LatencyHist::new(),
             response: LatencyHist::new(),
             late: 0,
+            log: MissLog::new(),
         }
     }
 
     /// Mark the start of a message's work for the preempted/overrun and
     /// host split (a thread-CPU clock read and a context-switch count).
     pub fn start(&mut self) {
-        self.cpu_start_ns = thread_cpu_ns();
-        self.switches_start = thread_switches();
+        self.start_at(thread_cpu_ns(), thread_switches());
+    }
+
+    /// [`Budget::start`] with the thread's CPU clock and switch count given.
+    fn start_at(&mut self, cpu_ns: u64, switches: u64) {
+        self.cpu_start_ns = cpu_ns;
+        self.switches_start = switches;
     }
 
     /// Record one message that started at `start_ns` and finished at
-    /// `end_ns`; returns true if it missed the budget.
+    /// `end_ns` (both on the stage's clock); returns true if it missed the
+    /// budget.
     pub fn record(&mut self, start_ns: u64, end_ns: u64) -> bool {
+        self.record_probed(start_ns, end_ns, || (thread_cpu_ns(), thread_switches()))
+    }
+
+    /// [`Budget::record`] with `now` giving the thread's CPU clock and
+    /// context-switch count at the end (read only for a miss).
+    fn record_probed(
+        &mut self,
+        start_ns: u64,
+        end_ns: u64,
+        now: impl FnOnce() -> (u64, u64),
+    ) -> bool {
         let dt = end_ns.saturating_sub(start_ns);
         self.compute.record(dt);
         let miss = self.budget_ns > 0 && dt > self.budget_ns;
-        self.misses += miss as u64;
-        if miss && self.cpu_start_ns > 0 {
-            let cpu = thread_cpu_ns().saturating_sub(self.cpu_start_ns);
-            match classify(self.budget_ns, cpu, self.switches_start, thread_switches()) {
-                MissKind::Overrun => {}
-                MissKind::Preempted => self.preempted += 1,
-                MissKind::Host => {
-                    self.preempted += 1;
-                    self.host += 1;
-                }
-            }
+        if miss {
+            self.count_miss(start_ns, dt, now);
         }
         miss
+    }
+
+    /// Classify, count and log a miss of wall time `wall_ns` that started
+    /// at `start_ns`.
+    #[cold]
+    fn count_miss(&mut self, start_ns: u64, wall_ns: u64, now: impl FnOnce() -> (u64, u64)) {
+        self.misses += 1;
+        let (kind, cpu_ns, switches) = if self.cpu_start_ns > 0 {
+            let (cpu_now, sw_now) = now();
+            let cpu = cpu_now.saturating_sub(self.cpu_start_ns);
+            let kind = classify(self.budget_ns, cpu, self.switches_start, sw_now);
+            let known = self.switches_start != u64::MAX && sw_now != u64::MAX;
+            let switches = known.then(|| sw_now.saturating_sub(self.switches_start));
+            (kind, Some(cpu), switches)
+        } else {
+            // No mark: nothing says the time was taken from the stage.
+            (MissKind::Overrun, None, None)
+        };
+        match kind {
+            MissKind::Overrun => {}
+            MissKind::Preempted => self.preempted += 1,
+            MissKind::Host => {
+                self.preempted += 1;
+                self.host += 1;
+            }
+        }
+        self.log.push(Miss {
+            start_ns,
+            wall_ns,
+            cpu_ns,
+            switches,
+            kind,
+        });
     }
 
     /// Record one message released at `release_ns` (its input's publish
@@ -142,19 +194,46 @@ impl Budget {
     pub fn compute(&self) -> &LatencyHist {
         &self.compute
     }
+
+    /// The most recent misses (oldest first) and how many were pushed out:
+    /// [`Budget::misses`] = listed + [`MissLog::overwritten`].
+    pub fn miss_log(&self) -> &MissLog {
+        &self.log
+    }
 }
 
-/// Who a deadline miss belongs to.
+/// Who a deadline miss belongs to (the discriminant is its wire id).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u32)]
 pub enum MissKind {
-    /// The stage's own CPU time exceeded the budget.
-    Overrun,
+    /// The stage's own CPU time exceeded the budget (or was not measured:
+    /// a miss without a start mark is never called someone else's).
+    Overrun = 1,
     /// Within budget on the CPU, but the thread was switched out: another
     /// thread of this machine ran in its place.
-    Preempted,
+    Preempted = 2,
     /// Within budget on the CPU and never switched out: interrupts or the
     /// hypervisor took the time.
-    Host,
+    Host = 3,
+}
+
+impl MissKind {
+    /// Every kind, by wire id.
+    pub const ALL: [MissKind; 3] = [MissKind::Overrun, MissKind::Preempted, MissKind::Host];
+
+    /// `overrun`, `preempted` or `host` (the report's word).
+    pub fn name(self) -> &'static str {
+        match self {
+            MissKind::Overrun => "overrun",
+            MissKind::Preempted => "preempted",
+            MissKind::Host => "host",
+        }
+    }
+
+    /// Decode a wire id.
+    pub fn from_id(id: u32) -> Option<MissKind> {
+        MissKind::ALL.into_iter().find(|k| *k as u32 == id)
+    }
 }
 
 /// Classify a miss from the thread's CPU time over the message and its
@@ -225,10 +304,20 @@ mod tests {
         b.start();
         let t0 = crate::clock::now_ns();
         std::thread::sleep(std::time::Duration::from_nanos(3 * budget));
-        assert!(b.record(t0, crate::clock::now_ns()));
+        let t1 = crate::clock::now_ns();
+        assert!(b.record(t0, t1));
         assert_eq!((b.misses(), b.preempted()), (1, 1));
         // The sleep switched the thread out: this machine, not the host.
         assert_eq!(b.host(), 0);
+        let m = *b.miss_log().iter().next().unwrap();
+        assert_eq!(
+            (m.start_ns, m.wall_ns, m.kind),
+            (t0, t1 - t0, MissKind::Preempted)
+        );
+        assert!(
+            m.cpu_ns.unwrap() <= budget && m.switches.unwrap() >= 1,
+            "{m:?}"
+        );
         // Computing for 3× the budget: an own overrun.
         b.start();
         let t0 = crate::clock::now_ns();
@@ -241,6 +330,121 @@ mod tests {
         std::thread::sleep(std::time::Duration::from_nanos(3 * budget));
         assert!(b.record(t0, crate::clock::now_ns()));
         assert_eq!((b.misses(), b.preempted()), (3, 1));
+        let kinds: Vec<_> = b.miss_log().iter().map(|m| m.kind).collect();
+        assert_eq!(
+            kinds,
+            [MissKind::Preempted, MissKind::Overrun, MissKind::Overrun]
+        );
+        assert!(b.miss_log().iter().nth(1).unwrap().cpu_ns.unwrap() > budget);
+    }
+
+    /// A miss by hand: thread CPU clock and switch count at the start mark
+    /// and at the end.
+    fn miss_at(
+        b: &mut Budget,
+        start_ns: u64,
+        end_ns: u64,
+        (cpu0, sw0): (u64, u64),
+        (cpu1, sw1): (u64, u64),
+    ) -> bool {
+        b.start_at(cpu0, sw0);
+        b.record_probed(start_ns, end_ns, || (cpu1, sw1))
+    }
+
+    #[test]
+    fn the_log_lists_each_miss_with_its_time_cpu_switches_and_kind() {
+        let mut b = Budget::new(100);
+        // On time: nothing listed, the clocks are not even read.
+        b.start_at(1_000, 5);
+        assert!(!b.record_probed(10_000, 10_100, || panic!("read on time")));
+        // 150 wall, 40 on the CPU, no switch: the host's.
+        assert!(miss_at(&mut b, 20_000, 20_150, (2_000, 5), (2_040, 5)));
+        // 300 wall, 50 on the CPU, 2 switches: preempted.
+        assert!(miss_at(&mut b, 30_000, 30_300, (3_000, 7), (3_050, 9)));
+        // 200 wall, 180 on the CPU: its own overrun.
+        assert!(miss_at(&mut b, 40_000, 40_200, (4_000, 9), (4_180, 9)));
+        // Switch counts unreadable: preempted, switches unknown.
+        assert!(miss_at(
+            &mut b,
+            50_000,
+            50_101,
+            (5_000, u64::MAX),
+            (5_010, u64::MAX)
+        ));
+        // A compute time at the budget is on time.
+        assert!(!miss_at(&mut b, 60_000, 60_100, (6_000, 9), (6_000, 9)));
+        let want = [
+            (20_000, 150, Some(40), Some(0), MissKind::Host),
+            (30_000, 300, Some(50), Some(2), MissKind::Preempted),
+            (40_000, 200, Some(180), Some(0), MissKind::Overrun),
+            (50_000, 101, Some(10), None, MissKind::Preempted),
+        ];
+        let got: Vec<_> = b
+            .miss_log()
+            .iter()
+            .map(|m| (m.start_ns, m.wall_ns, m.cpu_ns, m.switches, m.kind))
+            .collect();
+        assert_eq!(got, want);
+        assert_eq!((b.misses(), b.preempted(), b.host()), (4, 3, 1));
+        assert_eq!(b.miss_log().overwritten(), 0);
+        // Without any start mark the CPU time is unknown and the miss stays
+        // the stage's own.
+        let mut unmarked = Budget::new(100);
+        assert!(unmarked.record_probed(7_000, 7_500, || panic!("no mark to read against")));
+        let m = unmarked.miss_log().iter().next().copied().unwrap();
+        assert_eq!(
+            (m.cpu_ns, m.switches, m.kind),
+            (None, None, MissKind::Overrun)
+        );
+        assert_eq!((unmarked.misses(), unmarked.preempted()), (1, 0));
+    }
+
+    #[test]
+    fn every_miss_is_listed_or_counted_out_and_the_counts_match_the_kinds() {
+        use crate::miss_log::MISS_LOG_CAPACITY;
+        let mut b = Budget::new(100);
+        let n = MISS_LOG_CAPACITY as u64 + 9;
+        // Miss i: host when i % 3 == 0, preempted when 1, overrun when 2;
+        // on-time messages in between are never listed.
+        for i in 0..n {
+            let t = 1_000_000 * i;
+            assert!(!miss_at(&mut b, t, t + 50, (10, 1), (20, 1)));
+            let (cpu, sw) = match i % 3 {
+                0 => (60, 1),
+                1 => (60, 2),
+                _ => (160, 1),
+            };
+            assert!(miss_at(
+                &mut b,
+                t + 100,
+                t + 300 + i,
+                (10, 1),
+                (10 + cpu, sw)
+            ));
+        }
+        let log = b.miss_log();
+        assert_eq!(log.len(), MISS_LOG_CAPACITY);
+        assert_eq!(log.overwritten(), 9);
+        assert_eq!(b.misses(), log.len() as u64 + log.overwritten());
+        // The 9 oldest are gone; the rest in order, each its own.
+        for (m, i) in log.iter().zip(9..n) {
+            let kind = [MissKind::Host, MissKind::Preempted, MissKind::Overrun][(i % 3) as usize];
+            assert_eq!(
+                (m.start_ns, m.wall_ns, m.kind),
+                (1_000_000 * i + 100, 200 + i, kind)
+            );
+        }
+        // The counters span every miss: 14 of 0..41 are ≡ 0 (mod 3), 14 ≡ 1.
+        assert_eq!((b.host(), b.preempted()), (14, 28));
+    }
+
+    #[test]
+    fn kinds_round_trip_their_wire_ids() {
+        for k in MissKind::ALL {
+            assert_eq!(MissKind::from_id(k as u32), Some(k));
+        }
+        assert_eq!(MissKind::from_id(0), None);
+        assert_eq!(MissKind::Host.name(), "host");
     }
 
     #[test]

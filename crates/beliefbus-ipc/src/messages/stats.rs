@@ -48,6 +48,57 @@ pub const STATS_HOPS: usize = 4;
 pub const STATS_REASONS: usize = 12;
 /// Drop-reason slots in one [`StageStats`] (`crate::stage::DropReason`).
 pub const STATS_DROP_REASONS: usize = 4;
+/// Miss slots in one [`StageStats`]: the stage's whole miss log.
+pub const STATS_MISSES: usize = 32;
+const _: () = assert!(STATS_MISSES == crate::rt::miss_log::MISS_LOG_CAPACITY);
+
+/// One deadline miss inside [`StageStats`] (`crate::rt::miss_log::Miss`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+pub struct MissStats {
+    /// When the message's work started, CLOCK_MONOTONIC ns.
+    pub start_ns: u64,
+    /// Its wall-clock time, ns.
+    pub wall_ns: u64,
+    /// The thread's CPU time over it, ns ([`MISS_UNKNOWN`]: not measured).
+    pub cpu_ns: u64,
+    /// The thread's context switches over it ([`MISS_UNKNOWN`]: not
+    /// measured).
+    pub switches: u64,
+    /// `crate::rt::budget::MissKind` id (0: slot unused).
+    pub kind: u32,
+    pub reserved: u32,
+}
+
+/// [`MissStats`]' value of a figure that was not measured.
+pub const MISS_UNKNOWN: u64 = u64::MAX;
+
+impl From<&crate::rt::miss_log::Miss> for MissStats {
+    fn from(m: &crate::rt::miss_log::Miss) -> Self {
+        MissStats {
+            start_ns: m.start_ns,
+            wall_ns: m.wall_ns,
+            cpu_ns: m.cpu_ns.unwrap_or(MISS_UNKNOWN),
+            switches: m.switches.unwrap_or(MISS_UNKNOWN),
+            kind: m.kind as u32,
+            reserved: 0,
+        }
+    }
+}
+
+impl MissStats {
+    /// The miss this slot holds (none: unused or an unknown kind).
+    pub fn miss(&self) -> Option<crate::rt::miss_log::Miss> {
+        let known = |v: u64| (v != MISS_UNKNOWN).then_some(v);
+        Some(crate::rt::miss_log::Miss {
+            start_ns: self.start_ns,
+            wall_ns: self.wall_ns,
+            cpu_ns: known(self.cpu_ns),
+            switches: known(self.switches),
+            kind: crate::rt::budget::MissKind::from_id(self.kind)?,
+        })
+    }
+}
 
 /// The stages of a pipeline (`stage` field of [`StageStats`]).
 #[derive(
@@ -115,7 +166,7 @@ pub mod stats_flags {
 
 /// Periodic (and final) statistics of a stage (stage → launcher).
 #[derive(Clone, Copy, Debug, PartialEq, ZeroCopySend)]
-#[type_name("beliefbus.StageStats.v4")]
+#[type_name("beliefbus.StageStats.v5")]
 #[repr(C)]
 pub struct StageStats {
     /// seq: report number; t_valid = t_pub: when the report was made.
@@ -224,6 +275,12 @@ pub struct StageStats {
     pub chain_rows_exact: u64,
     pub chain_rows_least_squares: u64,
     pub chain_recentred: u64,
+    /// The stage's most recent deadline misses, oldest first, in slots
+    /// `0..` (an unused slot has kind 0; `beliefbus_rt::miss_log`).
+    pub miss_log: [MissStats; STATS_MISSES],
+    /// Misses no longer in `miss_log` (pushed out by newer ones):
+    /// `deadline_misses` = listed + this.
+    pub miss_log_overwritten: u64,
 }
 
 impl Default for StageStats {
@@ -275,6 +332,8 @@ impl Default for StageStats {
             chain_rows_exact: 0,
             chain_rows_least_squares: 0,
             chain_recentred: 0,
+            miss_log: [MissStats::default(); STATS_MISSES],
+            miss_log_overwritten: 0,
         }
     }
 }
@@ -286,5 +345,10 @@ impl StageStats {
             .iter()
             .find(|h| h.hop == hop as u32)
             .map(|h| &h.pct)
+    }
+
+    /// The misses of `miss_log`, oldest first.
+    pub fn misses(&self) -> impl Iterator<Item = crate::rt::miss_log::Miss> + '_ {
+        self.miss_log.iter().map_while(MissStats::miss)
     }
 }

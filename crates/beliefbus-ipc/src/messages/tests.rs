@@ -120,3 +120,42 @@ fn ids_round_trip() {
     }
     assert_eq!(Hop::from_id(0), None);
 }
+
+// A miss slot is five 8-byte words: no padding a C reader could misplace.
+const _: () = {
+    assert!(size_of::<MissStats>() == 40);
+    assert!(align_of::<MissStats>() == 8);
+    assert!(offset_of!(MissStats, start_ns) == 0);
+    assert!(offset_of!(MissStats, cpu_ns) == 16);
+    assert!(offset_of!(MissStats, kind) == 32);
+};
+
+#[test]
+fn a_miss_log_round_trips_through_the_stats_message() {
+    use crate::rt::budget::MissKind;
+    use crate::rt::miss_log::Miss;
+    let a = Miss {
+        start_ns: 12_345_678_901,
+        wall_ns: 115_800,
+        cpu_ns: Some(116_400),
+        switches: Some(0),
+        kind: MissKind::Overrun,
+    };
+    let b = Miss {
+        start_ns: 12_400_000_000,
+        wall_ns: 4_331_000,
+        cpu_ns: None,
+        switches: None,
+        kind: MissKind::Host,
+    };
+    let mut s = StageStats::default();
+    assert_eq!(s.misses().count(), 0);
+    s.miss_log[0] = MissStats::from(&a);
+    s.miss_log[1] = MissStats::from(&b);
+    assert_eq!(s.miss_log[1].cpu_ns, MISS_UNKNOWN);
+    assert_eq!(s.miss_log[0].kind, 1);
+    assert_eq!(s.misses().collect::<Vec<_>>(), [a, b]);
+    // An unknown kind id ends the list rather than inventing a miss.
+    s.miss_log[1].kind = 9;
+    assert_eq!(s.misses().collect::<Vec<_>>(), [a]);
+}

@@ -6,10 +6,11 @@
 //!
 //! Common to every stage ([`Metrics`], [`StatsPort`]): counters of processed,
 //! dropped and rejected inputs (by reason), the compute time of every
-//! processed message against the stage's budget, the latency hops that end
-//! at the stage (computed from the trace the message carries), and a
-//! [`StageStats`] report published at start (so the launcher knows the stage
-//! is up), every `run.stats_period_s`, and once more on the way out.
+//! processed message against the stage's budget (with the log of its latest
+//! deadline misses), the latency hops that end at the stage (computed from
+//! the trace the message carries), and a [`StageStats`] report published at
+//! start (so the launcher knows the stage is up), every
+//! `run.stats_period_s`, and once more on the way out.
 
 pub mod chain_guard;
 pub mod control;
@@ -24,8 +25,8 @@ pub mod snapshots;
 use crate::config::{ConfigError, PipelineConfig};
 use crate::ipc::BusConfig;
 use crate::ipc::{
-    stats_flags, Bus, Hop, HopStats, IpcError, Percentiles, Publisher, StageKind, StageStats,
-    Trace, STATS_DROP_REASONS, STATS_HOPS, STATS_REASONS,
+    stats_flags, Bus, Hop, HopStats, IpcError, MissStats, Percentiles, Publisher, StageKind,
+    StageStats, Trace, STATS_DROP_REASONS, STATS_HOPS, STATS_REASONS,
 };
 use crate::rt::{Budget, Clock, LatencyHist, RtApplied};
 use crate::stage::resume::Resume;
@@ -353,6 +354,11 @@ impl Metrics {
             dropped_by_reason: self.dropped_by_reason,
             ..StageStats::default()
         };
+        let log = self.budget.miss_log();
+        for (slot, m) in s.miss_log.iter_mut().zip(log.iter()) {
+            *slot = MissStats::from(m);
+        }
+        s.miss_log_overwritten = log.overwritten();
         for (slot, (hop, h)) in s.hops.iter_mut().zip(&self.hops) {
             *slot = HopStats {
                 hop: *hop as u32,

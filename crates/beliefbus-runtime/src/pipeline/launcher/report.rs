@@ -56,13 +56,15 @@ pub(super) fn stage_end(s: Option<&Stage>, last: Option<StageStats>) -> StageEnd
     }
 }
 
-/// The report's input at the end of the run.
+/// The report's input at the end of the run that started at
+/// `run_start_ns` (CLOCK_MONOTONIC).
 pub(super) fn report_input(
     cfg: &PipelineConfig,
     opts: &RunOptions,
     prefix: &str,
     stages: &[Stage],
     mon: &Monitor,
+    run_start_ns: u64,
 ) -> ReportInput {
     ReportInput {
         scenario: cfg.run.scenario.clone(),
@@ -86,6 +88,7 @@ pub(super) fn report_input(
         accuracy: mon.accuracy(),
         files_removed: 0,
         files_left: 0,
+        run_start_ns,
     }
 }
 

@@ -108,11 +108,13 @@ pub(super) fn supervise(
         notes: &mut notes,
         sup: &mut sup,
     };
+    // The origin of the report's miss times: before the first stage starts.
+    let run_start_ns = now_ns();
     let outcome = drive(&mut ctx, stop, &mut mon, &mut stages);
     shutdown(&mut stages, &mut mon);
     let _ = mon.poll();
     drop(state);
-    let input = report::report_input(cfg, opts, prefix, &stages, &mon);
+    let input = report::report_input(cfg, opts, prefix, &stages, &mon, run_start_ns);
     let extra = report::supervision(&stages, &sup);
     drop(mon);
     drop(bus);

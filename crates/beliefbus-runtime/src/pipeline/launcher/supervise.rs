@@ -14,7 +14,7 @@
 //! synthetic exit statuses and instants. The loop that applies them to real
 //! processes is [`super::run_loop`].
 
-use crate::ipc::{StageKind, StageStats, STATS_DROP_REASONS};
+use crate::ipc::{MissStats, StageKind, StageStats, STATS_DROP_REASONS, STATS_MISSES};
 use crate::pipeline::monitor::Output;
 use crate::pipeline::supervisor::{Death, Decision, GiveUpReason, RestartPolicy, RestartState};
 use crate::rt::sched::RtSettings;
@@ -53,6 +53,10 @@ pub(super) struct Stage {
     pub earlier: [u64; CARRIED],
     /// `dropped_by_reason` of earlier incarnations.
     pub earlier_drops: [u64; STATS_DROP_REASONS],
+    /// The latest misses of earlier incarnations (oldest first, at most
+    /// [`STATS_MISSES`]) and how many of theirs are no longer listed.
+    pub earlier_misses: Vec<MissStats>,
+    pub earlier_misses_overwritten: u64,
     /// Causes of the deaths of earlier incarnations.
     pub deaths: Vec<String>,
 }
@@ -91,6 +95,8 @@ impl Stage {
             chaos_kills: 0,
             earlier: [0; CARRIED],
             earlier_drops: [0; STATS_DROP_REASONS],
+            earlier_misses: Vec::new(),
+            earlier_misses_overwritten: 0,
             deaths: Vec::new(),
         }
     }
@@ -147,11 +153,15 @@ impl Stage {
         for (e, d) in self.earlier_drops.iter_mut().zip(st.dropped_by_reason) {
             *e += d;
         }
+        let (misses, gone) = latest_misses(&self.earlier_misses, st);
+        self.earlier_misses = misses;
+        self.earlier_misses_overwritten += st.miss_log_overwritten + gone;
     }
 
     /// `st` (the last incarnation's report) with the counters of the
     /// earlier incarnations added: counters span every incarnation,
-    /// histograms are the last one's.
+    /// histograms are the last one's, the miss log holds the latest misses
+    /// of all (deadline misses = listed + `miss_log_overwritten` still).
     pub fn with_earlier(&self, mut st: StageStats) -> StageStats {
         let e = &self.earlier;
         st.processed += e[0];
@@ -168,6 +178,10 @@ impl Stage {
         for (d, x) in st.dropped_by_reason.iter_mut().zip(self.earlier_drops) {
             *d += x;
         }
+        let (misses, gone) = latest_misses(&self.earlier_misses, &st);
+        st.miss_log_overwritten += self.earlier_misses_overwritten + gone;
+        st.miss_log = [MissStats::default(); STATS_MISSES];
+        st.miss_log[..misses.len()].copy_from_slice(&misses);
         st
     }
 
@@ -218,6 +232,17 @@ fn counters(st: &StageStats) -> [u64; CARRIED] {
         st.deadline_misses_host,
         st.dropped_stale_idle,
     ]
+}
+
+/// The latest [`STATS_MISSES`] of `earlier` (older) followed by the misses
+/// listed in `st`, oldest first, and how many of them that pushed out
+/// (`st`'s own `miss_log_overwritten` not included).
+fn latest_misses(earlier: &[MissStats], st: &StageStats) -> (Vec<MissStats>, u64) {
+    let listed = st.miss_log.iter().take_while(|m| m.miss().is_some());
+    let mut all: Vec<MissStats> = earlier.iter().copied().chain(listed.copied()).collect();
+    let gone = all.len().saturating_sub(STATS_MISSES);
+    all.drain(..gone);
+    (all, gone as u64)
 }
 
 /// `exit N`, `signal N` of a reaped process.

@@ -56,6 +56,10 @@ pub struct RunReport {
     /// The timeline summary (`--timeline`; null without samples).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timeline: Option<Value>,
+    /// When the run started, CLOCK_MONOTONIC ns: the origin of the misses'
+    /// `t_us` (absent in reports written before it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub run_start_ns: Option<u64>,
     /// Time the machine took from the stages' cores during the run
     /// (present when the launcher ran it on Linux).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -123,9 +127,39 @@ pub struct StageReport {
     /// `exit 0`, `signal 9`, `restart pending (...)`; null: not reaped or
     /// not started by the launcher.
     pub exit_status: Option<String>,
+    /// The stage's most recent deadline misses, oldest first (at most
+    /// `beliefbus_rt::miss_log::MISS_LOG_CAPACITY`, over every
+    /// incarnation). Added with a default: reports written before it parse.
+    #[serde(default)]
+    pub misses: Vec<MissReport>,
+    /// Misses not in `misses` (pushed out by newer ones):
+    /// `deadline_misses` = len(`misses`) + this.
+    #[serde(default)]
+    pub misses_not_listed: u64,
     /// Restarts, heartbeat misses, chaos kills and deaths (when supervised).
     #[serde(default, flatten, skip_serializing_if = "Option::is_none")]
     pub supervision: Option<StageSupervision>,
+}
+
+/// One deadline miss of a stage (`beliefbus_rt::miss_log::Miss`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MissReport {
+    /// When the message's work started, µs after the run's start
+    /// (`run_start_ns`).
+    pub t_us: f64,
+    /// The same instant on CLOCK_MONOTONIC, ns (an `ftrace` trace with
+    /// trace clock `mono`, or `perf record -k mono`, stamps the same clock).
+    pub t_ns: u64,
+    /// Wall-clock time of the message, µs (above `budget_us`).
+    pub wall_us: f64,
+    /// The thread's CPU time from the stage's start mark to its record of
+    /// the message, µs: it can include publishing the output, after the
+    /// end of `wall_us` (null: not measured).
+    pub cpu_us: Option<f64>,
+    /// The thread's context switches over it (null: not measured).
+    pub switches: Option<u64>,
+    /// `overrun`, `preempted` or `host` (the rule of `deadline_misses_*`).
+    pub kind: String,
 }
 
 /// A stage's supervision figures.
@@ -291,7 +325,19 @@ fn reason_names(kind: StageKind) -> Vec<&'static str> {
     }
 }
 
-fn stage_report(kind: StageKind, end: &super::StageEnd) -> StageReport {
+/// A miss as the report lists it, its time relative to `run_start_ns`.
+pub(super) fn miss_report(m: &crate::rt::miss_log::Miss, run_start_ns: u64) -> MissReport {
+    MissReport {
+        t_us: (m.start_ns as i128 - run_start_ns as i128) as f64 / 1e3,
+        t_ns: m.start_ns,
+        wall_us: us(m.wall_ns),
+        cpu_us: m.cpu_ns.map(us),
+        switches: m.switches,
+        kind: m.kind.name().to_string(),
+    }
+}
+
+fn stage_report(kind: StageKind, end: &super::StageEnd, run_start_ns: u64) -> StageReport {
     let s = end.stats.unwrap_or_default();
     let has = end.stats.is_some();
     let c = &s.compute;
@@ -327,6 +373,8 @@ fn stage_report(kind: StageKind, end: &super::StageEnd) -> StageReport {
         mlocked: has && s.flags & stats_flags::MLOCKED != 0,
         final_report: has && s.flags & stats_flags::FINAL != 0,
         exit_status: end.exit.clone(),
+        misses: s.misses().map(|m| miss_report(&m, run_start_ns)).collect(),
+        misses_not_listed: s.miss_log_overwritten,
         supervision: None,
     }
 }
@@ -373,7 +421,7 @@ impl ReportInput {
             stages: self
                 .stages
                 .iter()
-                .map(|(k, e)| (k.name().to_string(), stage_report(*k, e)))
+                .map(|(k, e)| (k.name().to_string(), stage_report(*k, e, self.run_start_ns)))
                 .collect(),
             accuracy: AccuracyReport {
                 rmse_position: finite(a.rmse_position),
@@ -403,6 +451,7 @@ impl ReportInput {
                 .collect(),
             supervisor: None,
             timeline: None,
+            run_start_ns: (self.run_start_ns > 0).then_some(self.run_start_ns),
             host: None,
         }
     }

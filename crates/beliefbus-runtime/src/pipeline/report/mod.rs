@@ -9,8 +9,10 @@
 //!             {count, p50_us, p90_us, p99_us, p999_us, max_us} },
 //!   stages: { ingest | filter | control | refine | plant:
 //!             {pid, core, processed, dropped, rejected, rejected_by_reason,
-//!              deadline_misses, deadline_misses_preempted, compute_p50_us, compute_p99_us, budget_us,
+//!              deadline_misses, deadline_misses_preempted, deadline_misses_host,
+//!              compute_p50_us, compute_p99_us, budget_us,
 //!              fifo, mlocked, final_report, exit_status,
+//!              misses: [{t_us, t_ns, wall_us, cpu_us, switches, kind}], misses_not_listed,
 //!              restarts, heartbeat_misses, chaos_kills, deaths} },
 //!   accuracy: {rmse_position, rmse_state, rmse_position_raw, beliefs, samples},
 //!   control:  {waypoints_reached, mean_distance_to_waypoint, controls_received,
@@ -24,6 +26,7 @@
 //!   streams:  {observations: {published, counted, unaccounted}},
 //!   shared_memory: {files_removed, files_left},
 //!   scenario_metrics: {<scenario>: {...}}   (scenarios with their own figures)
+//!   run_start_ns,                           (CLOCK_MONOTONIC; origin of the misses' t_us)
 //!   supervisor: {...}, timeline: {...} }    (added by the launcher)
 //! ```
 //! The JSON is written from the serde structs of [`json`] ([`RunReport`]);
@@ -52,7 +55,7 @@ mod json;
 mod render;
 
 pub use json::{
-    AccuracyReport, ChainReport, ControlReport, FilterReport, HopJson, HostReport,
+    AccuracyReport, ChainReport, ControlReport, FilterReport, HopJson, HostReport, MissReport,
     ObservationBooks, RecoveryReport, RecoverySummary, RunReport, SharedMemoryReport, StageReport,
     StageSupervision, StreamsReport, SupervisorReport, REPORT_SCHEMA_VERSION,
 };
@@ -114,6 +117,9 @@ pub struct ReportInput {
     pub accuracy: Accuracy,
     pub files_removed: usize,
     pub files_left: usize,
+    /// When the run started, CLOCK_MONOTONIC ns (0: unknown): the origin
+    /// of the times of the stages' misses.
+    pub run_start_ns: u64,
 }
 
 impl ReportInput {

@@ -10,6 +10,7 @@ impl ReportInput {
         let mut out = self.hop_table();
         out.push('\n');
         out.push_str(&self.stage_table());
+        out.push_str(&self.miss_lines());
         out.push_str(&self.summary_lines());
         out
     }
@@ -89,6 +90,32 @@ impl ReportInput {
                     "-".into()
                 },
             ));
+        }
+        out
+    }
+
+    /// One line per listed miss of each stage that missed, oldest first:
+    /// when it started (s after the run's start, and on CLOCK_MONOTONIC as
+    /// an `ftrace`/`perf` trace prints it), its wall and thread CPU time,
+    /// context switches and kind; first how many earlier misses are no
+    /// longer listed, if any.
+    fn miss_lines(&self) -> String {
+        let mut out = String::new();
+        for (kind, end) in &self.stages {
+            let Some(s) = end.stats.as_ref() else {
+                continue;
+            };
+            if s.miss_log_overwritten > 0 {
+                out.push_str(&format!(
+                    "{} earlier {} misses not listed (the list keeps the latest {})\n",
+                    s.miss_log_overwritten,
+                    kind.name(),
+                    crate::ipc::STATS_MISSES
+                ));
+            }
+            for m in s.misses() {
+                out.push_str(&miss_line(kind.name(), &m, self.run_start_ns));
+            }
         }
         out
     }
@@ -193,4 +220,31 @@ fn scenario_line(name: &str, v: &serde_json::Map<String, serde_json::Value>) -> 
         })
         .collect();
     format!("{name}: {}\n", parts.join(", "))
+}
+
+/// `ingest miss at t=12.345 678 s (mono 8312.104233 s): 115.8 µs wall,
+/// 116.4 µs CPU, 0 switches (overrun)`: `t` after `run_start_ns`, `mono`
+/// the CLOCK_MONOTONIC time in the format of an `ftrace` or `perf` trace.
+fn miss_line(stage: &str, m: &crate::rt::miss_log::Miss, run_start_ns: u64) -> String {
+    let rel_us = (m.start_ns as i128 - run_start_ns as i128) / 1_000;
+    let sign = if rel_us < 0 { "-" } else { "" };
+    let (s, frac) = (rel_us.abs() / 1_000_000, rel_us.abs() % 1_000_000);
+    let cpu = m
+        .cpu_ns
+        .map(|c| format!("{:.1} µs CPU", us(c)))
+        .unwrap_or("CPU time unknown".into());
+    let switches = match m.switches {
+        Some(1) => "1 switch".to_string(),
+        Some(n) => format!("{n} switches"),
+        None => "switches unknown".to_string(),
+    };
+    format!(
+        "{stage} miss at t={sign}{s}.{:03} {:03} s (mono {}.{:06} s): {:.1} µs wall, {cpu}, {switches} ({})\n",
+        frac / 1_000,
+        frac % 1_000,
+        m.start_ns / 1_000_000_000,
+        m.start_ns % 1_000_000_000 / 1_000,
+        us(m.wall_ns),
+        m.kind.name()
+    )
 }

@@ -51,6 +51,7 @@ fn input() -> ReportInput {
         accuracy: Accuracy::default(),
         files_removed: 3,
         files_left: 0,
+        run_start_ns: 5_000_000_000,
     }
 }
 
@@ -104,6 +105,8 @@ fn json_has_every_documented_key() {
             "lateness_p50_us",
             "lateness_p99_us",
             "lateness_max_us",
+            "misses",
+            "misses_not_listed",
         ] {
             assert!(st.get(k).is_some(), "stages.{}.{k}", s.name());
         }
@@ -352,4 +355,86 @@ fn the_scenarios_own_figures_are_printed_on_one_line() {
         t.contains("ship: detected 3, detection_delays [2 entries], tracking_mse 1.5000\n"),
         "{t}"
     );
+}
+
+/// The control stage of [`input`] with three misses listed, 41 more pushed
+/// out of its log; the run started at 5 s on CLOCK_MONOTONIC.
+fn input_with_misses() -> ReportInput {
+    use crate::ipc::MissStats;
+    let mut inp = input();
+    let (_, end) = inp
+        .stages
+        .iter_mut()
+        .find(|(k, _)| *k == StageKind::Control)
+        .unwrap();
+    let ctl = end.stats.as_mut().unwrap();
+    ctl.deadline_misses = 44;
+    ctl.miss_log_overwritten = 41;
+    let slot = |start_ns, wall_ns, cpu_ns, switches, kind| MissStats {
+        start_ns,
+        wall_ns,
+        cpu_ns,
+        switches,
+        kind,
+        reserved: 0,
+    };
+    // 12.345 678 901 s after the start: an overrun, no switch.
+    ctl.miss_log[0] = slot(17_345_678_901, 115_800, 116_400, 0, 1);
+    // Preempted, one switch; host, CPU time and switches unknown.
+    ctl.miss_log[1] = slot(17_400_000_000, 1_087_000, 544_000, 1, 2);
+    let unknown = crate::ipc::MISS_UNKNOWN;
+    ctl.miss_log[2] = slot(20_000_002_000, 4_331_000, unknown, unknown, 3);
+    inp
+}
+
+#[test]
+fn a_stages_misses_are_listed_with_their_times_in_json_and_text() {
+    let inp = input_with_misses();
+    let v = inp.to_json();
+    assert_eq!(v["run_start_ns"], json!(5_000_000_000u64));
+    let c = &v["stages"]["control"];
+    assert_eq!(c["misses_not_listed"], json!(41));
+    let m = c["misses"].as_array().unwrap();
+    assert_eq!(m.len(), 3);
+    assert_eq!(
+        m[0],
+        json!({"t_us": 12_345_678.901, "t_ns": 17_345_678_901u64, "wall_us": 115.8,
+               "cpu_us": 116.4, "switches": 0, "kind": "overrun"})
+    );
+    assert_eq!(m[1]["t_us"], json!(12_400_000.0));
+    assert_eq!(
+        (m[1]["switches"].clone(), m[1]["kind"].clone()),
+        (json!(1), json!("preempted"))
+    );
+    assert_eq!(
+        m[2],
+        json!({"t_us": 15_000_002.0, "t_ns": 20_000_002_000u64, "wall_us": 4331.0,
+               "cpu_us": null, "switches": null, "kind": "host"})
+    );
+    // Listed + not listed = every miss; the other stages have none.
+    assert_eq!(m.len() as u64 + 41, c["deadline_misses"].as_u64().unwrap());
+    assert_eq!(v["stages"]["filter"]["misses"], json!([]));
+    assert_eq!(v["stages"]["filter"]["misses_not_listed"], json!(0));
+    // The report round-trips through its serde structs.
+    let back: RunReport = serde_json::from_value(v.clone()).unwrap();
+    assert_eq!(back.stages["control"].misses[0].t_ns, 17_345_678_901);
+
+    let text = inp.render();
+    let lines: Vec<&str> = text.lines().filter(|l| l.contains("control")).collect();
+    let want = [
+        "41 earlier control misses not listed (the list keeps the latest 32)",
+        "control miss at t=12.345 678 s (mono 17.345678 s): 115.8 µs wall, 116.4 µs CPU, 0 switches (overrun)",
+        "control miss at t=12.400 000 s (mono 17.400000 s): 1087.0 µs wall, 544.0 µs CPU, 1 switch (preempted)",
+        "control miss at t=15.000 002 s (mono 20.000002 s): 4331.0 µs wall, CPU time unknown, switches unknown (host)",
+    ];
+    for w in want {
+        assert!(lines.contains(&w), "missing {w:?} in\n{text}");
+    }
+    // Under the stage table, before the summary, in order.
+    let at = |s: &str| text.find(s).unwrap();
+    assert!(at("stage ") < at(want[0]) && at(want[0]) < at(want[1]));
+    assert!(at(want[1]) < at(want[2]) && at(want[2]) < at(want[3]));
+    assert!(at(want[3]) < at("accuracy:"));
+    // A run without misses prints no miss line.
+    assert!(!input().render().contains(" miss at "));
 }

@@ -50,7 +50,13 @@ fn seq_tracker_from_zero_counts_what_came_before_the_first_message() {
 
 #[test]
 fn the_filter_accounts_for_every_observation_published() {
-    let cfg = test_config(&["filter.backend=ekf", "ingest.max_age_s=10"]);
+    // A 1 ns budget: every filtered observation is a deadline miss, and
+    // its log has to reach the launcher in the stats message.
+    let cfg = test_config(&[
+        "filter.backend=ekf",
+        "ingest.max_age_s=10",
+        "stages.filter.budget_us=0.001",
+    ]);
     let _c = Cleanup(cfg.run.prefix.clone());
     let stop = Arc::new(AtomicBool::new(false));
     let bus = Bus::open(&cfg.bus(), "test").unwrap();
@@ -61,6 +67,7 @@ fn the_filter_accounts_for_every_observation_published() {
     wait_ready(&stats, 1);
     let clock = MonotonicClock;
     let n = 80u64;
+    let t_begin = clock.now_ns();
     for (o, _) in ship_observations(&cfg, n as usize, clock.now_ns()) {
         let k = o.header.seq;
         // Never delivered: 0..3 (as if published before the filter
@@ -79,6 +86,7 @@ fn the_filter_accounts_for_every_observation_published() {
     }
     stop.store(true, Ordering::SeqCst);
     let fin = h.join().unwrap().unwrap();
+    let t_end = clock.now_ns();
     let by = |r: DropReason| fin.dropped_by_reason[r as usize];
     assert_eq!(fin.processed + fin.dropped + fin.rejected, n, "{fin:?}");
     assert_eq!(fin.rejected, 0);
@@ -87,6 +95,40 @@ fn the_filter_accounts_for_every_observation_published() {
     assert!(by(DropReason::Shutdown) <= Observation::QOS.default_buffer as u64 + 1);
     assert_eq!(by(DropReason::Stale) + by(DropReason::Superseded), 0);
     assert_eq!(fin.dropped_by_reason.iter().sum::<u64>(), fin.dropped);
+    // Every filtered observation missed; the log lists the latest 32 of
+    // them, in order, inside the test's time, and counts the rest.
+    let cap = crate::ipc::STATS_MISSES as u64;
+    assert_eq!(fin.deadline_misses, fin.processed);
+    let listed: Vec<_> = fin.misses().collect();
+    assert_eq!(listed.len() as u64, fin.processed.min(cap));
+    assert_eq!(
+        fin.miss_log_overwritten,
+        fin.processed - listed.len() as u64
+    );
+    for w in listed.windows(2) {
+        assert!(w[0].start_ns + w[0].wall_ns <= w[1].start_ns, "{w:?}");
+    }
+    for m in &listed {
+        assert!(
+            m.start_ns >= t_begin && m.start_ns + m.wall_ns <= t_end,
+            "{m:?}"
+        );
+        // The filter marks each message's start: CPU time and switches
+        // are measured.
+        assert!(
+            m.wall_ns > 1 && m.cpu_ns.is_some() && m.switches.is_some(),
+            "{m:?}"
+        );
+    }
+    // The final report that went over the stats channel carries the same log.
+    let mut last = None;
+    while let Some(s) = stats.receive().unwrap() {
+        last = Some(s);
+    }
+    let last = last.expect("no stats report after the first");
+    assert_ne!(last.flags & crate::ipc::stats_flags::FINAL, 0);
+    assert_eq!(last.miss_log, fin.miss_log);
+    assert_eq!(last.miss_log_overwritten, fin.miss_log_overwritten);
 }
 
 #[test]

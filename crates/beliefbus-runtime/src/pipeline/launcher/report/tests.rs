@@ -191,6 +191,7 @@ fn input_with(exits: &[(StageKind, Option<&str>)]) -> ReportInput {
         accuracy: Accuracy::default(),
         files_removed: 0,
         files_left: 0,
+        run_start_ns: 0,
     }
 }
 

@@ -320,3 +320,61 @@ fn counters_span_every_incarnation() {
     // Histograms are the last incarnation's.
     assert_eq!(t.compute.count, 3);
 }
+
+/// A report whose miss log lists misses starting at `starts` (ns), with
+/// `overwritten` more pushed out before them.
+fn with_misses(starts: std::ops::Range<u64>, overwritten: u64) -> StageStats {
+    let mut st = StageStats {
+        deadline_misses: starts.end - starts.start + overwritten,
+        miss_log_overwritten: overwritten,
+        ..StageStats::default()
+    };
+    for (slot, t) in st.miss_log.iter_mut().zip(starts) {
+        *slot = crate::ipc::MissStats {
+            start_ns: t,
+            wall_ns: 500 + t,
+            cpu_ns: t,
+            switches: 1,
+            kind: 2,
+            reserved: 0,
+        };
+    }
+    st
+}
+
+fn listed_starts(st: &StageStats) -> Vec<u64> {
+    st.misses().map(|m| m.start_ns).collect()
+}
+
+#[test]
+fn the_miss_log_keeps_the_latest_misses_of_every_incarnation() {
+    use crate::ipc::STATS_MISSES;
+    let cap = STATS_MISSES as u64;
+    // First incarnation: 5 misses, all listed. Second: 40, the last 32
+    // listed. Last: 3.
+    let mut s = Stage::without_process(StageKind::Control, 1, Instant::now());
+    s.carry(&with_misses(100..105, 0));
+    let t = s.with_earlier(with_misses(200..203, 0));
+    assert_eq!(listed_starts(&t), [100, 101, 102, 103, 104, 200, 201, 202]);
+    assert_eq!((t.deadline_misses, t.miss_log_overwritten), (8, 0));
+    s.carry(&with_misses(1_000..1_000 + cap, 8));
+    let t = s.with_earlier(with_misses(2_000..2_003, 0));
+    // 48 misses: the latest 32 are the second incarnation's last 29 and
+    // the last one's 3; the other 16 are counted.
+    let want: Vec<u64> = (1_003..1_000 + cap).chain(2_000..2_003).collect();
+    assert_eq!(listed_starts(&t), want);
+    assert_eq!(t.deadline_misses, 5 + 40 + 3);
+    assert_eq!(t.miss_log_overwritten, 16);
+    assert_eq!(t.deadline_misses, cap + t.miss_log_overwritten);
+    // Every field travels with its entry.
+    let m = t.misses().next().unwrap();
+    assert_eq!(
+        (m.wall_ns, m.cpu_ns, m.switches),
+        (1_503, Some(1_003), Some(1))
+    );
+    // A last incarnation with a full log of its own lists only its own.
+    let t = s.with_earlier(with_misses(3_000..3_000 + cap, 2));
+    assert_eq!(listed_starts(&t), (3_000..3_000 + cap).collect::<Vec<_>>());
+    assert_eq!(t.miss_log_overwritten, 13 + 32 + 2);
+    assert_eq!(t.deadline_misses, cap + t.miss_log_overwritten);
+}
