@@ -17,7 +17,9 @@
 //!   e₁ = 0.1 the brief calls the width: light half-widths 1.2, goal 0.2.
 //!   b₀ = N(start, 0.5² I) on the chain. The chain is grown incrementally
 //!   (75 → 150 → 300 → 600) from uniform samples plus the goal's centre
-//!   (so that the goal holds a state at every n), Near the radius
+//!   (so that the goal holds a state at every n; `goal_states=cross`: also
+//!   the four points on its border along the axes, so that the centre's
+//!   cell lies in the goal at every n), Near the radius
 //!   3 (ln n / n)^{1/2}; U = {0, the four corners (±1, ±1)} ∪ uniform
 //!   draws on [−1, 1]², ⌊5 ln n⌋ in all; O = ⌊5 ln n⌋ uniform points in each light
 //!   box plus ⌊5 ln n⌋ on the whole square (in the dark the likelihood is
@@ -133,6 +135,10 @@ pub struct Setting {
     /// Terminal reward averaged over each state's cell ([`goal_cells`]);
     /// false: at the state's point (the thesis's).
     pub cell_goal: bool,
+    /// Besides the goal's centre, seed the 2-D chain with the four points
+    /// on the goal's border along the axes (the centre's cell then lies in
+    /// the goal whatever the uniform samples); false: the centre only.
+    pub goal_cross: bool,
     /// The 2-D box's edge is a cliff (−1000, the episode ends;
     /// [`chain_pomdp::cliff`]) in the chain and the truth; false: a wall.
     pub cliff: bool,
@@ -295,18 +301,7 @@ pub fn two_d(
         kappa_drift: s.kappa_drift,
         ..ChainConfig::gaussian(2).with_near(NearRule::Radius { gamma: 3.0 })
     };
-    // Moment rows: states every 0.5 along the box's edges too, so that the
-    // states' hull is the box and every row's mean is the clamped z + u h;
-    // a point on an edge can only be a mixture of states on that edge
-    // (with the corners alone, one 3.5 away; without edge states the chain
-    // stops at its outermost samples where the system stops at the wall).
-    let mut corners = vec![1.5, -1.5];
-    if s.rows == Rows::Moment {
-        for k in 0..8 {
-            let t = -2.0 + 0.5 * k as f64;
-            corners.extend([t, -2.0, 2.0, t, -t, 2.0, -2.0, -t]);
-        }
-    }
+    let corners = model::seed_states_2d(s.rows == Rows::Moment, s.goal_cross, &goal);
     let mut chain = Chain::batch(&m, cfg, &corners)?;
     let mut touched = Vec::new();
     let mut controls = vec![
@@ -452,6 +447,7 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         kappa_drift,
         rows: params::rows(args, &mut rep)?,
         cell_goal: params::cell_goal(args, &mut rep)?,
+        goal_cross: params::goal_cross(args, &mut rep)?,
         cliff: params::cliff(args, &mut rep)?,
         trial_gap: p.f64(&mut rep, "trial_gap", 0.5)?,
         follow_lower: u32::try_from(p.usize(&mut rep, "follow_lower", 0)?)
@@ -517,6 +513,12 @@ pub fn run(args: &ExperimentArgs) -> Result<ExperimentReport> {
         load.is_none() || !carry_check,
         "--param load: not with carry_check (no previous solve)"
     );
+    // Created up front: a run of many minutes must not fail at its first
+    // policy for want of a directory.
+    if let Some(dir) = &dump {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--param dump: creating the directory {dir}"))?;
+    }
     // Loaded policies: the chains rebuilt from the same seeds, no solving.
     let (budgets, fresh) = match load {
         Some(_) => (vec![1e-3], true),

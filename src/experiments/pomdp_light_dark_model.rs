@@ -91,3 +91,32 @@ pub fn light_2d() -> Boxes {
 pub fn goal_2d() -> Boxes {
     Boxes(vec![(vec![1.5, -1.5], 0.2)])
 }
+
+/// The 2-D chain's fixed states (flat x, y pairs) before the uniform
+/// samples: the goal's centre; with `cross` also the four points at the
+/// goal's half-width along each axis (the centre's Voronoi cell then lies
+/// within half of it, so a cell-averaged goal reward is the full reward
+/// there whatever the samples); with `edges` (moment rows) states every
+/// 0.5 along the box's edges, so that the states' hull is the box and every
+/// row's mean is the clamped z + u h — a point on an edge can only be a
+/// mixture of states on that edge (with the corners alone, one 3.5 away;
+/// without edge states the chain stops at its outermost samples where the
+/// system stops at the wall).
+pub fn seed_states_2d(edges: bool, cross: bool, goal: &Boxes) -> Vec<f64> {
+    let (g, e) = &goal.0[0];
+    let mut pts = g.clone();
+    if cross {
+        for (i, sign) in [(0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0)] {
+            let mut x = g.clone();
+            x[i] += sign * e;
+            pts.extend(x);
+        }
+    }
+    if edges {
+        for k in 0..8 {
+            let t = -2.0 + 0.5 * k as f64;
+            pts.extend([t, -2.0, 2.0, t, -t, 2.0, -2.0, -t]);
+        }
+    }
+    pts
+}

@@ -61,6 +61,11 @@ pub const PARAMS: &[ParamDoc] = &[
         "terminal reward at each state's point (state) or averaged over its Voronoi cell (cell)",
     ),
     p(
+        "goal_states",
+        "centre",
+        "2-D chain states seeded in the goal: its centre (centre) or also the four border points on its axes (cross)",
+    ),
+    p(
         "solves",
         "1",
         "independent 2-D solves (chains from seed, seed+1, ...), summarised per size in rows 'replicates'",
@@ -184,6 +189,14 @@ pub fn cell_goal(
     rep: &mut crate::experiments::ExperimentReport,
 ) -> anyhow::Result<bool> {
     word_choice(args, rep, "goal_reward", "state", "cell")
+}
+
+/// `--param goal_states=centre|cross`: true for `cross`.
+pub fn goal_cross(
+    args: &crate::experiments::ExperimentArgs,
+    rep: &mut crate::experiments::ExperimentReport,
+) -> anyhow::Result<bool> {
+    word_choice(args, rep, "goal_states", "centre", "cross")
 }
 
 /// Every `--param` key must be one of [`PARAMS`].

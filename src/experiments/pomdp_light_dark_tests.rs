@@ -11,6 +11,7 @@ fn setting() -> Setting {
         kappa_drift: 1.0,
         rows: Rows::Kernel,
         cell_goal: false,
+        goal_cross: false,
         cliff: false,
         trial_gap: 0.5,
         follow_lower: 0,
@@ -459,4 +460,96 @@ fn per_solve_evaluation_seeds_change_the_simulations_and_nothing_else() {
         }
     }
     assert_eq!(rows.len(), 2);
+}
+
+/// The terminal reward R(s, u_goal) of the 2-D chain state nearest the
+/// goal's centre, for chains from `seeds` at `n` states.
+fn centre_rewards(s: &Setting, n: usize, seeds: std::ops::Range<u64>) -> Vec<f64> {
+    let g = [1.5, -1.5];
+    seeds
+        .map(|seed| {
+            let mut r = f64::NAN;
+            two_d(&[n], &[0.05], s, seed, true, |z| {
+                let i = (0..z.cp.n_chain())
+                    .min_by(|&a, &b| {
+                        let d = |i: usize| {
+                            let x = z.cp.state(i);
+                            (x[0] - g[0]).hypot(x[1] - g[1])
+                        };
+                        d(a).total_cmp(&d(b))
+                    })
+                    .unwrap();
+                assert_eq!(z.cp.state(i), &g[..], "the goal's centre is a state");
+                r = z.cp.pomdp.reward[0][i];
+                Ok(())
+            })
+            .unwrap();
+            r
+        })
+        .collect()
+}
+
+/// With the goal's four axis border points as states the centre's Voronoi
+/// cell lies within |x − g|∞ ≤ 0.1 < 0.2, so its cell-averaged reward is
+/// the full +1000 on every chain; with the centre alone it depends on
+/// where the uniform samples fell (less on some of these chains).
+#[test]
+fn the_goal_cross_gives_the_centre_state_the_full_cell_reward() {
+    let base = Setting {
+        cell_goal: true,
+        rows: Rows::Moment,
+        period: 0.5,
+        ..setting()
+    };
+    let cross = Setting {
+        goal_cross: true,
+        ..base
+    };
+    for r in centre_rewards(&cross, 150, 1..5) {
+        assert_eq!(r, 1000.0);
+    }
+    let alone = centre_rewards(&base, 150, 1..5);
+    assert!(alone.iter().any(|&r| r < 990.0), "{alone:?}");
+}
+
+/// `dump=DIR` creates DIR (a long run must not fail at its first policy)
+/// and `load=DIR` re-evaluates exactly what was dumped: the same chain
+/// reward and continuous value from the same seeds, without solving.
+#[test]
+fn dumped_policies_load_back_to_the_same_evaluation() {
+    let dir = std::env::temp_dir().join(format!("beliefbus-ld-dump-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let nested = dir.join("a/b");
+    let kv = |k: &str, v: &str| (k.to_string(), v.to_string());
+    let common = [
+        kv("states", "40"),
+        kv("solve_s", "0.3"),
+        kv("rows", "moment"),
+        kv("period_s", "0.5"),
+        kv("goal_reward", "cell"),
+        kv("goal_states", "cross"),
+        kv("solve_1d_s", "0.05"),
+        kv("anytime_s", "0.05"),
+        kv("anytime_states", "40"),
+    ];
+    let args = |extra: (String, String)| ExperimentArgs {
+        runs: Some(40),
+        seed: 3,
+        params: common.iter().cloned().chain([extra]).collect(),
+        ..ExperimentArgs::default()
+    };
+    let path = nested.display().to_string();
+    let solved = run(&args(kv("dump", &path))).unwrap();
+    let loaded = run(&args(kv("load", &path))).unwrap();
+    let two_d_rows = |r: &ExperimentReport| -> Vec<(f64, f64)> {
+        r.results
+            .iter()
+            .filter(|x| x.method == "chain-pomdp" && x.metrics["problem"] == "2-D")
+            .map(|x| (x.get("reward").unwrap(), x.get("continuous").unwrap()))
+            .collect()
+    };
+    let (a, b) = (two_d_rows(&solved), two_d_rows(&loaded));
+    assert_eq!(a.len(), 1);
+    assert_eq!(a, b);
+    std::fs::remove_dir_all(&dir).unwrap();
 }
