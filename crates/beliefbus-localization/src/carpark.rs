@@ -428,6 +428,71 @@ mod tests {
         }
     }
 
+    /// The layout takes the same draws at every lateral range (side,
+    /// offset, jitter per candidate), so the true path and the laser gaps'
+    /// places are the same at every `landmark_offset`; each landmark lies
+    /// within the range of the path (at least lo from every point of it, at
+    /// most hypot(hi, spacing / 2) from the nearest).
+    #[test]
+    fn the_true_path_and_the_gaps_do_not_depend_on_the_landmark_offset() {
+        let rec = circle();
+        let at = |lo: f64, hi: f64| {
+            let cfg = CarParkConfig {
+                start_time: 0.0,
+                duration: 60.0,
+                landmark_offset: (lo, hi),
+                gap_every: 20.0,
+                gap_len: 4.0,
+                ..Default::default()
+            };
+            CarPark::generate(&rec, &cfg, &mut beliefbus_core::rng::stream(9, 3)).unwrap()
+        };
+        let ranges = [(0.5, 2.0), (2.0, 10.0), (4.0, 4.0), (10.0, 15.0)];
+        let cps: Vec<CarPark> = ranges.iter().map(|&(lo, hi)| at(lo, hi)).collect();
+        let want = cps[0].path_length() / 8.0;
+        for (cp, &(lo, hi)) in cps.iter().zip(&ranges) {
+            assert_eq!(cp.truth, cps[0].truth, "{lo}-{hi}");
+            assert_eq!(cp.dropped_scans, cps[0].dropped_scans, "{lo}-{hi}");
+            assert_eq!(
+                cp.scans.len() + cp.empty_scans,
+                cps[0].scans.len() + cps[0].empty_scans,
+                "{lo}-{hi}"
+            );
+            // At most one per 8 m; on the inside of the circle a landmark
+            // jittered along the path comes closer than lo to it and is
+            // dropped, most often when the range is narrow (4-4 keeps 7
+            // of 26 here).
+            let n = cp.landmarks.len() as f64;
+            assert!(
+                n <= want + 1.0 && n > 0.2 * want,
+                "{n} at {lo}-{hi}, {want}"
+            );
+            for m in &cp.landmarks {
+                let d = cp
+                    .truth
+                    .iter()
+                    .map(|p| (p[0] - m[0]).hypot(p[1] - m[1]))
+                    .fold(f64::INFINITY, f64::min);
+                assert!(d >= lo && d <= hi.hypot(4.0) + 1e-9, "{d} at {lo}-{hi}");
+            }
+        }
+        // Near the path and far from it the landmarks differ.
+        let mean_d = |cp: &CarPark| {
+            let ds: Vec<f64> = cp
+                .landmarks
+                .iter()
+                .map(|m| {
+                    cp.truth
+                        .iter()
+                        .map(|p| (p[0] - m[0]).hypot(p[1] - m[1]))
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .collect();
+            ds.iter().sum::<f64>() / ds.len() as f64
+        };
+        assert!(mean_d(&cps[0]) < 2.5 && mean_d(&cps[3]) > 9.0);
+    }
+
     #[test]
     fn bad_settings_are_refused() {
         let rec = circle();
