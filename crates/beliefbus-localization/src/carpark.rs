@@ -217,13 +217,19 @@ impl CarPark {
                 if in_view(&x, m, cfg.max_range) {
                     let (r, b) = predict(&x, m);
                     let e: [f64; 2] = [rng.sample(StandardNormal), rng.sample(StandardNormal)];
-                    obs.push(Observation {
-                        range: r + cfg.laser.var_range.sqrt() * e[0],
-                        bearing: crate::geometry::wrap_angle(
-                            b + cfg.laser.var_bearing.sqrt() * e[1],
-                        ),
-                        landmark: i,
-                    });
+                    let range = r + cfg.laser.var_range.sqrt() * e[0];
+                    // A laser reports no return at a range ≤ 0 (a landmark
+                    // within the range noise of the laser); the noise is
+                    // drawn either way, so the stream stays in step.
+                    if range > 0.0 {
+                        obs.push(Observation {
+                            range,
+                            bearing: crate::geometry::wrap_angle(
+                                b + cfg.laser.var_bearing.sqrt() * e[1],
+                            ),
+                            landmark: i,
+                        });
+                    }
                 }
             }
             if obs.len() == start {
@@ -491,6 +497,38 @@ mod tests {
             ds.iter().sum::<f64>() / ds.len() as f64
         };
         assert!(mean_d(&cps[0]) < 2.5 && mean_d(&cps[3]) > 9.0);
+    }
+
+    /// Landmarks within the range noise of the path: the noisy ranges that
+    /// come out ≤ 0 are not reported (a laser never returns them, and a
+    /// filter handed one divides by it), the rest are as drawn.
+    #[test]
+    fn no_return_has_a_range_at_or_below_zero() {
+        let rec = circle();
+        let at = |var_range: f64| {
+            let cfg = CarParkConfig {
+                start_time: 0.0,
+                duration: 60.0,
+                landmark_offset: (0.2, 0.6),
+                laser: LaserNoise {
+                    var_range,
+                    var_bearing: 1e-4,
+                },
+                ..Default::default()
+            };
+            CarPark::generate(&rec, &cfg, &mut beliefbus_core::rng::stream(2, 5)).unwrap()
+        };
+        let (quiet, wide) = (at(1e-8), at(1.0));
+        assert_eq!(quiet.truth, wide.truth);
+        assert!(wide.obs.iter().all(|o| o.range > 0.0));
+        // With σ = 1 m on landmarks 0.2–0.6 m off the path some draws fall
+        // at or below zero and are dropped.
+        assert!(
+            wide.obs.len() < quiet.obs.len(),
+            "{} {}",
+            wide.obs.len(),
+            quiet.obs.len()
+        );
     }
 
     #[test]

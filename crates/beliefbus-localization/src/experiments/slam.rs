@@ -452,7 +452,13 @@ fn run_setting(
                 &mut rng,
                 s.assoc,
                 &mut est,
-            )?;
+            )
+            .map_err(|e| LocalizationError::InRun {
+                method: name,
+                samples: m,
+                run: r,
+                cause: Box::new(e),
+            })?;
             if r == 0 && s.plot.is_some() && shown.contains(&i) {
                 let fig = first
                     .get_or_insert_with(|| (cp.truth.clone(), cp.landmarks.clone(), Vec::new()));
