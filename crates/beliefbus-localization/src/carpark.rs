@@ -217,13 +217,19 @@ impl CarPark {
                 if in_view(&x, m, cfg.max_range) {
                     let (r, b) = predict(&x, m);
                     let e: [f64; 2] = [rng.sample(StandardNormal), rng.sample(StandardNormal)];
-                    obs.push(Observation {
-                        range: r + cfg.laser.var_range.sqrt() * e[0],
-                        bearing: crate::geometry::wrap_angle(
-                            b + cfg.laser.var_bearing.sqrt() * e[1],
-                        ),
-                        landmark: i,
-                    });
+                    let range = r + cfg.laser.var_range.sqrt() * e[0];
+                    // A laser reports no return at a range ≤ 0 (a landmark
+                    // within the range noise of the laser); the noise is
+                    // drawn either way, so the stream stays in step.
+                    if range > 0.0 {
+                        obs.push(Observation {
+                            range,
+                            bearing: crate::geometry::wrap_angle(
+                                b + cfg.laser.var_bearing.sqrt() * e[1],
+                            ),
+                            landmark: i,
+                        });
+                    }
                 }
             }
             if obs.len() == start {
@@ -426,6 +432,103 @@ mod tests {
                 "{n} landmarks at {s} m, {want}"
             );
         }
+    }
+
+    /// The layout takes the same draws at every lateral range (side,
+    /// offset, jitter per candidate), so the true path and the laser gaps'
+    /// places are the same at every `landmark_offset`; each landmark lies
+    /// within the range of the path (at least lo from every point of it, at
+    /// most hypot(hi, spacing / 2) from the nearest).
+    #[test]
+    fn the_true_path_and_the_gaps_do_not_depend_on_the_landmark_offset() {
+        let rec = circle();
+        let at = |lo: f64, hi: f64| {
+            let cfg = CarParkConfig {
+                start_time: 0.0,
+                duration: 60.0,
+                landmark_offset: (lo, hi),
+                gap_every: 20.0,
+                gap_len: 4.0,
+                ..Default::default()
+            };
+            CarPark::generate(&rec, &cfg, &mut beliefbus_core::rng::stream(9, 3)).unwrap()
+        };
+        let ranges = [(0.5, 2.0), (2.0, 10.0), (4.0, 4.0), (10.0, 15.0)];
+        let cps: Vec<CarPark> = ranges.iter().map(|&(lo, hi)| at(lo, hi)).collect();
+        let want = cps[0].path_length() / 8.0;
+        for (cp, &(lo, hi)) in cps.iter().zip(&ranges) {
+            assert_eq!(cp.truth, cps[0].truth, "{lo}-{hi}");
+            assert_eq!(cp.dropped_scans, cps[0].dropped_scans, "{lo}-{hi}");
+            assert_eq!(
+                cp.scans.len() + cp.empty_scans,
+                cps[0].scans.len() + cps[0].empty_scans,
+                "{lo}-{hi}"
+            );
+            // At most one per 8 m; on the inside of the circle a landmark
+            // jittered along the path comes closer than lo to it and is
+            // dropped, most often when the range is narrow (4-4 keeps 7
+            // of 26 here).
+            let n = cp.landmarks.len() as f64;
+            assert!(
+                n <= want + 1.0 && n > 0.2 * want,
+                "{n} at {lo}-{hi}, {want}"
+            );
+            for m in &cp.landmarks {
+                let d = cp
+                    .truth
+                    .iter()
+                    .map(|p| (p[0] - m[0]).hypot(p[1] - m[1]))
+                    .fold(f64::INFINITY, f64::min);
+                assert!(d >= lo && d <= hi.hypot(4.0) + 1e-9, "{d} at {lo}-{hi}");
+            }
+        }
+        // Near the path and far from it the landmarks differ.
+        let mean_d = |cp: &CarPark| {
+            let ds: Vec<f64> = cp
+                .landmarks
+                .iter()
+                .map(|m| {
+                    cp.truth
+                        .iter()
+                        .map(|p| (p[0] - m[0]).hypot(p[1] - m[1]))
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .collect();
+            ds.iter().sum::<f64>() / ds.len() as f64
+        };
+        assert!(mean_d(&cps[0]) < 2.5 && mean_d(&cps[3]) > 9.0);
+    }
+
+    /// Landmarks within the range noise of the path: the noisy ranges that
+    /// come out ≤ 0 are not reported (a laser never returns them, and a
+    /// filter handed one divides by it), the rest are as drawn.
+    #[test]
+    fn no_return_has_a_range_at_or_below_zero() {
+        let rec = circle();
+        let at = |var_range: f64| {
+            let cfg = CarParkConfig {
+                start_time: 0.0,
+                duration: 60.0,
+                landmark_offset: (0.2, 0.6),
+                laser: LaserNoise {
+                    var_range,
+                    var_bearing: 1e-4,
+                },
+                ..Default::default()
+            };
+            CarPark::generate(&rec, &cfg, &mut beliefbus_core::rng::stream(2, 5)).unwrap()
+        };
+        let (quiet, wide) = (at(1e-8), at(1.0));
+        assert_eq!(quiet.truth, wide.truth);
+        assert!(wide.obs.iter().all(|o| o.range > 0.0));
+        // With σ = 1 m on landmarks 0.2–0.6 m off the path some draws fall
+        // at or below zero and are dropped.
+        assert!(
+            wide.obs.len() < quiet.obs.len(),
+            "{} {}",
+            wide.obs.len(),
+            quiet.obs.len()
+        );
     }
 
     #[test]

@@ -48,6 +48,15 @@ pub enum LocalizationError {
     /// Every particle weight vanished or became NaN.
     #[error("all particle weights vanished or are NaN at step {step}")]
     Degenerate { step: usize },
+    /// A method failed on one data set of an experiment: which one, and why
+    /// (the cause in the message, as for `Io`).
+    #[error("{method} at M = {samples}, data set {run}: {cause}")]
+    InRun {
+        method: &'static str,
+        samples: usize,
+        run: u64,
+        cause: Box<LocalizationError>,
+    },
 }
 
 impl LocalizationError {
@@ -62,5 +71,27 @@ impl LocalizationError {
                 need: "must be finite and > 0",
             })
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A failed run names the method, its samples and the data set, and its
+    /// cause once: in the message, not again through `source()`.
+    #[test]
+    fn a_failed_run_names_the_method_and_the_data_set() {
+        let e = LocalizationError::InRun {
+            method: "fastslam1",
+            samples: 100,
+            run: 7,
+            cause: Box::new(LocalizationError::Degenerate { step: 1726 }),
+        };
+        assert_eq!(
+            e.to_string(),
+            "fastslam1 at M = 100, data set 7: all particle weights vanished or are NaN at step 1726"
+        );
+        assert!(std::error::Error::source(&e).is_none());
     }
 }

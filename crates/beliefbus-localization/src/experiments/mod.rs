@@ -6,6 +6,7 @@ pub mod mcl;
 pub mod params;
 pub mod slam;
 pub mod slam_acceptance;
+pub mod slam_layout;
 pub mod slam_noise;
 pub mod slam_paper;
 pub mod slam_plot;

@@ -146,6 +146,11 @@ pub const PARAMS: &[ParamDoc] = &[
         "arc length between landmarks along the path (m)",
     ),
     p(
+        "landmark_offset",
+        "2-10",
+        "lateral distance of a landmark from the path, uniform in lo-hi (m), either side; one number: every landmark at that distance; 0 < lo <= hi <= max_range",
+    ),
+    p(
         "gap_every_s",
         "30",
         "one laser gap per window of this length (s); 0: none",
@@ -276,6 +281,10 @@ pub fn setup(kv: &[(String, String)]) -> Result<Setup, LocalizationError> {
         truth_noise: ps.get("truth_noise", d.truth_noise)?,
         max_range: ps.get("max_range", d.max_range)?,
         landmark_spacing: ps.get("landmark_spacing", d.landmark_spacing)?,
+        landmark_offset: match ps.raw(super::slam_layout::KEY) {
+            Some(v) => super::slam_layout::parse_offset(v, ps.get("max_range", d.max_range)?)?,
+            None => d.landmark_offset,
+        },
         gap_every: ps.get("gap_every_s", d.gap_every)?,
         gap_len: ps.get("gap_len_s", d.gap_len)?,
         ..d
@@ -443,7 +452,13 @@ fn run_setting(
                 &mut rng,
                 s.assoc,
                 &mut est,
-            )?;
+            )
+            .map_err(|e| LocalizationError::InRun {
+                method: name,
+                samples: m,
+                run: r,
+                cause: Box::new(e),
+            })?;
             if r == 0 && s.plot.is_some() && shown.contains(&i) {
                 let fig = first
                     .get_or_insert_with(|| (cp.truth.clone(), cp.landmarks.clone(), Vec::new()));

@@ -123,7 +123,7 @@ pub struct ImplicitRefineSlam {
     /// mode given the particle's path, with its conditional covariance (as
     /// FastSLAM's landmark EKFs do); `false` (the default): at the last
     /// draw of θ with its covariance marginal over that step's pose. The
-    /// mode was measured and loses on the synthetic car park (docs/slam.md).
+    /// mode was measured and loses on the synthetic car park (docs/slam-table6-gap.md).
     pub assoc_at_mode: bool,
 }
 
