@@ -79,6 +79,14 @@ pub struct StageFigures {
     /// The core the stage was pinned to (null: not pinned).
     #[serde(default)]
     pub core: Option<usize>,
+    /// The run report's latest misses of the stage, oldest first (when
+    /// each started, on the run's clock and on CLOCK_MONOTONIC, its wall
+    /// and CPU time, switches and kind), and how many older ones it no
+    /// longer lists.
+    #[serde(default)]
+    pub misses: Vec<crate::pipeline::report::MissReport>,
+    #[serde(default)]
+    pub misses_not_listed: u64,
 }
 
 /// What the monitor measured.
@@ -200,6 +208,8 @@ fn stage_figures(report: &serde_json::Value) -> Vec<(String, StageFigures)> {
                     late: s["late"].as_u64().unwrap_or(0),
                     lateness_p99_us: s["lateness_p99_us"].as_f64(),
                     core: s["core"].as_u64().map(|c| c as usize),
+                    misses: serde_json::from_value(s["misses"].clone()).unwrap_or_default(),
+                    misses_not_listed: s["misses_not_listed"].as_u64().unwrap_or(0),
                 },
             ))
         })
@@ -408,5 +418,40 @@ mod tests {
         assert_eq!(f.dropped_by_reason.values().sum::<u64>(), f.dropped);
         assert_eq!(f.dropped_stale_idle, 1);
         assert_eq!(f.core, Some(0));
+        assert!(f.misses.is_empty());
+    }
+
+    /// The run report's miss list reaches the jitter report whole, and its
+    /// text lines give each miss's time on the run's clock and on
+    /// CLOCK_MONOTONIC (as a kernel trace prints it).
+    #[test]
+    fn a_stage_s_listed_misses_come_through_with_their_times() {
+        let report = serde_json::json!({"stages": {"ingest": {
+            "processed": 10, "deadline_misses": 3, "misses_not_listed": 1,
+            "misses": [
+                {"t_us": 12345678.4, "t_ns": 8312104233999u64, "wall_us": 115.8,
+                 "cpu_us": 116.4, "switches": 0, "kind": "overrun"},
+                {"t_us": 20000001.0, "t_ns": 8319758556000u64, "wall_us": 4331.0,
+                 "cpu_us": null, "switches": null, "kind": "host"}
+            ]
+        }}});
+        let stages = stage_figures(&report);
+        let f = &stages[0].1;
+        assert_eq!(
+            f.misses.len() as u64 + f.misses_not_listed,
+            f.deadline_misses
+        );
+        assert_eq!(f.misses[1].kind, "host");
+        assert_eq!(f.misses[1].cpu_us, None);
+        assert_eq!(
+            f.misses[0].line("ingest"),
+            "ingest miss at t=12.345 678 s (mono 8312.104233 s): 115.8 µs wall, \
+             116.4 µs CPU, 0 switches (overrun)\n"
+        );
+        assert_eq!(
+            f.misses[1].line("ingest"),
+            "ingest miss at t=20.000 001 s (mono 8319.758556 s): 4331.0 µs wall, \
+             CPU time unknown, switches unknown (host)\n"
+        );
     }
 }

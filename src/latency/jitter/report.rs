@@ -237,6 +237,19 @@ impl JitterReport {
                     o(f.lateness_p99_us)
                 );
             }
+            // When each miss happened, to line it up with a kernel trace.
+            for (name, f) in &p.stages {
+                if f.misses_not_listed > 0 {
+                    s += &format!(
+                        "{} earlier {name} misses not listed (the run report keeps the latest {})\n",
+                        f.misses_not_listed,
+                        f.misses.len()
+                    );
+                }
+                for m in &f.misses {
+                    s += &m.line(name);
+                }
+            }
         }
         if let Some(p) = &self.pipeline {
             let total: u64 = p.stages.values().map(|f| f.deadline_misses).sum();

@@ -162,6 +162,36 @@ pub struct MissReport {
     pub kind: String,
 }
 
+impl MissReport {
+    /// `ingest miss at t=12.345 678 s (mono 8312.104233 s): 115.8 µs wall,
+    /// 116.4 µs CPU, 0 switches (overrun)`: `t` after the run's start,
+    /// `mono` the CLOCK_MONOTONIC time as an `ftrace` or `perf` trace
+    /// prints it (one line, newline included).
+    pub fn line(&self, stage: &str) -> String {
+        let rel_us = self.t_us.trunc() as i64;
+        let sign = if rel_us < 0 { "-" } else { "" };
+        let (s, frac) = (rel_us.abs() / 1_000_000, rel_us.abs() % 1_000_000);
+        let cpu = self
+            .cpu_us
+            .map(|c| format!("{c:.1} µs CPU"))
+            .unwrap_or("CPU time unknown".into());
+        let switches = match self.switches {
+            Some(1) => "1 switch".to_string(),
+            Some(n) => format!("{n} switches"),
+            None => "switches unknown".to_string(),
+        };
+        format!(
+            "{stage} miss at t={sign}{s}.{:03} {:03} s (mono {}.{:06} s): {:.1} µs wall, {cpu}, {switches} ({})\n",
+            frac / 1_000,
+            frac % 1_000,
+            self.t_ns / 1_000_000_000,
+            self.t_ns % 1_000_000_000 / 1_000,
+            self.wall_us,
+            self.kind
+        )
+    }
+}
+
 /// A stage's supervision figures.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct StageSupervision {

@@ -114,7 +114,7 @@ impl ReportInput {
                 ));
             }
             for m in s.misses() {
-                out.push_str(&miss_line(kind.name(), &m, self.run_start_ns));
+                out.push_str(&super::json::miss_report(&m, self.run_start_ns).line(kind.name()));
             }
         }
         out
@@ -220,31 +220,4 @@ fn scenario_line(name: &str, v: &serde_json::Map<String, serde_json::Value>) -> 
         })
         .collect();
     format!("{name}: {}\n", parts.join(", "))
-}
-
-/// `ingest miss at t=12.345 678 s (mono 8312.104233 s): 115.8 µs wall,
-/// 116.4 µs CPU, 0 switches (overrun)`: `t` after `run_start_ns`, `mono`
-/// the CLOCK_MONOTONIC time in the format of an `ftrace` or `perf` trace.
-fn miss_line(stage: &str, m: &crate::rt::miss_log::Miss, run_start_ns: u64) -> String {
-    let rel_us = (m.start_ns as i128 - run_start_ns as i128) / 1_000;
-    let sign = if rel_us < 0 { "-" } else { "" };
-    let (s, frac) = (rel_us.abs() / 1_000_000, rel_us.abs() % 1_000_000);
-    let cpu = m
-        .cpu_ns
-        .map(|c| format!("{:.1} µs CPU", us(c)))
-        .unwrap_or("CPU time unknown".into());
-    let switches = match m.switches {
-        Some(1) => "1 switch".to_string(),
-        Some(n) => format!("{n} switches"),
-        None => "switches unknown".to_string(),
-    };
-    format!(
-        "{stage} miss at t={sign}{s}.{:03} {:03} s (mono {}.{:06} s): {:.1} µs wall, {cpu}, {switches} ({})\n",
-        frac / 1_000,
-        frac % 1_000,
-        m.start_ns / 1_000_000_000,
-        m.start_ns % 1_000_000_000 / 1_000,
-        us(m.wall_ns),
-        m.kind.name()
-    )
 }
