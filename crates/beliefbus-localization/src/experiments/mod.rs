@@ -9,6 +9,7 @@ pub mod slam_acceptance;
 pub mod slam_layout;
 pub mod slam_noise;
 pub mod slam_paper;
+pub mod slam_params;
 pub mod slam_plot;
 pub mod slam_run;
 pub mod slam_svg;
