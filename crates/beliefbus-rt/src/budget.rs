@@ -37,6 +37,7 @@
 
 use super::clock::{thread_cpu_ns, thread_switches};
 use super::hist::LatencyHist;
+pub use super::miss_log::MissKind;
 use super::miss_log::{Miss, MissLog};
 
 /// Compute-time accounting against a budget.
@@ -199,40 +200,6 @@ impl Budget {
     /// [`Budget::misses`] = listed + [`MissLog::overwritten`].
     pub fn miss_log(&self) -> &MissLog {
         &self.log
-    }
-}
-
-/// Who a deadline miss belongs to (the discriminant is its wire id).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(u32)]
-pub enum MissKind {
-    /// The stage's own CPU time exceeded the budget (or was not measured:
-    /// a miss without a start mark is never called someone else's).
-    Overrun = 1,
-    /// Within budget on the CPU, but the thread was switched out: another
-    /// thread of this machine ran in its place.
-    Preempted = 2,
-    /// Within budget on the CPU and never switched out: interrupts or the
-    /// hypervisor took the time.
-    Host = 3,
-}
-
-impl MissKind {
-    /// Every kind, by wire id.
-    pub const ALL: [MissKind; 3] = [MissKind::Overrun, MissKind::Preempted, MissKind::Host];
-
-    /// `overrun`, `preempted` or `host` (the report's word).
-    pub fn name(self) -> &'static str {
-        match self {
-            MissKind::Overrun => "overrun",
-            MissKind::Preempted => "preempted",
-            MissKind::Host => "host",
-        }
-    }
-
-    /// Decode a wire id.
-    pub fn from_id(id: u32) -> Option<MissKind> {
-        MissKind::ALL.into_iter().find(|k| *k as u32 == id)
     }
 }
 

@@ -9,8 +9,6 @@
 //! either listed or counted: misses = [`MissLog::len`] +
 //! [`MissLog::overwritten`].
 
-use crate::budget::MissKind;
-
 /// Misses a [`MissLog`] keeps (the most recent ones).
 pub const MISS_LOG_CAPACITY: usize = 32;
 
@@ -104,6 +102,40 @@ impl MissLog {
         // before.
         let first = (self.next + MISS_LOG_CAPACITY - self.len) % MISS_LOG_CAPACITY;
         (0..self.len).map(move |i| &self.slots[(first + i) % MISS_LOG_CAPACITY])
+    }
+}
+
+/// Who a deadline miss belongs to (the discriminant is its wire id).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u32)]
+pub enum MissKind {
+    /// The stage's own CPU time exceeded the budget (or was not measured:
+    /// a miss without a start mark is never called someone else's).
+    Overrun = 1,
+    /// Within budget on the CPU, but the thread was switched out: another
+    /// thread of this machine ran in its place.
+    Preempted = 2,
+    /// Within budget on the CPU and never switched out: interrupts or the
+    /// hypervisor took the time.
+    Host = 3,
+}
+
+impl MissKind {
+    /// Every kind, by wire id.
+    pub const ALL: [MissKind; 3] = [MissKind::Overrun, MissKind::Preempted, MissKind::Host];
+
+    /// `overrun`, `preempted` or `host` (the report's word).
+    pub fn name(self) -> &'static str {
+        match self {
+            MissKind::Overrun => "overrun",
+            MissKind::Preempted => "preempted",
+            MissKind::Host => "host",
+        }
+    }
+
+    /// Decode a wire id.
+    pub fn from_id(id: u32) -> Option<MissKind> {
+        MissKind::ALL.into_iter().find(|k| *k as u32 == id)
     }
 }
 
