@@ -7,20 +7,28 @@
 use std::ffi::OsStr;
 use std::ops::Deref;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
-/// `<temp>/beliefbus-<tag>-<pid>-<name>/<name>`; the directory exists.
+/// Tests of one binary run in parallel and may ask for the same name: each
+/// scratch gets its own number, so one test's cleanup never removes a
+/// directory another is still using.
+static NEXT: AtomicUsize = AtomicUsize::new(0);
+
+/// `<temp>/beliefbus-<tag>-<pid>-<k>-<name>/<name>`, k unique within the
+/// process; the directory exists.
 pub struct Scratch {
     dir: PathBuf,
     path: PathBuf,
 }
 
 impl Scratch {
-    /// A fresh directory for `name` (what an earlier, killed run of the
-    /// same pid left there is removed first).
+    /// A fresh directory for `name` (what an earlier, killed process of
+    /// the same pid left there is removed first).
     pub fn new(tag: &str, name: &str) -> Self {
         let dir = std::env::temp_dir().join(format!(
-            "beliefbus-{tag}-{}-{}",
+            "beliefbus-{tag}-{}-{}-{}",
             std::process::id(),
+            NEXT.fetch_add(1, Ordering::Relaxed),
             name.replace(['/', '.'], "_")
         ));
         let _ = std::fs::remove_dir_all(&dir);
