@@ -17,11 +17,12 @@
 //! same random numbers wherever the algorithms allow.
 
 pub mod implicit;
+pub mod interval_prior;
 pub mod newton;
 pub mod particles;
 pub mod standard;
 
-use crate::carpark::{normal3, CarPark};
+use crate::carpark::CarPark;
 use crate::error::LocalizationError;
 use crate::geometry::{Point, Pose};
 use crate::laser::{LaserNoise, Observation};
@@ -60,12 +61,16 @@ pub trait Localizer {
         None
     }
 
-    /// A step without laser data: every particle moves by the motion model.
+    /// A step without laser data ([`ParticleSet::predict`]): every
+    /// particle moves by the motion model, or with the interval prior
+    /// follows the mean model and accumulates its noise.
     fn predict(&mut self, ute: &Ute, u: Control, noise: &StepNoise, rng: &mut SimRng) {
-        for x in self.particles_mut().x.iter_mut() {
-            let xi = normal3(rng);
-            *x = ute.predict_mean(x, u) + noise.draw(x[2], &xi);
-        }
+        self.particles_mut().predict(ute, u, noise, rng);
+    }
+
+    /// Turn the interval prior on or off (off at construction).
+    fn set_interval_prior(&mut self, on: bool) {
+        self.particles_mut().deferred = on;
     }
 }
 
