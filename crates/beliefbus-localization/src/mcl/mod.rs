@@ -113,3 +113,6 @@ pub fn run(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod interval_prior_tests;
