@@ -127,7 +127,7 @@ pub const PARAMS: &[ParamDoc] = &[
     p(
         "interval_prior",
         INTERVAL_PRIOR_DEFAULT,
-        "'on': between scans both filters move each particle by the mean model and accumulate its noise (linearised, mcl::interval_prior), and at the scan implicit MCL's Newton/linear map steers the whole interval's noise while standard MCL draws it from the same Gaussian; 'implicit': implicit MCL only, standard MCL draws blind; 'off': every step's noise drawn from the motion model as it comes",
+        "'on' (default): between scans both filters move each particle by the mean model and accumulate its noise (linearised, mcl::interval_prior), and at the scan implicit MCL's Newton/linear map steers the whole interval's noise while standard MCL draws it from the same Gaussian; 'implicit': implicit MCL only, standard MCL draws blind; 'off': every step's noise drawn from the motion model as it comes",
     ),
     p(
         "newton_tol",
@@ -136,8 +136,10 @@ pub const PARAMS: &[ParamDoc] = &[
     ),
 ];
 
-/// The default of `interval_prior`.
-pub const INTERVAL_PRIOR_DEFAULT: &str = "off";
+/// The default of `interval_prior`: both filters on the same linearised
+/// interval transition (like for like, and in the mean the stronger
+/// standard MCL; docs/mcl.md has the figures of all three settings).
+pub const INTERVAL_PRIOR_DEFAULT: &str = "on";
 
 /// (error %, CPU time per update in ms) of one method at one sample size.
 pub type PaperCell = (f64, f64);
@@ -492,4 +494,38 @@ pub fn acceptance(methods: &[(&str, usize)], per: &[Vec<RunMetrics>]) -> Vec<Str
         ));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn prior_of(v: Option<&str>) -> Result<IntervalPrior, LocalizationError> {
+        let kv: Vec<(String, String)> = v
+            .map(|v| ("interval_prior".to_string(), v.to_string()))
+            .into_iter()
+            .collect();
+        setup(&kv).map(|s| s.interval_prior)
+    }
+
+    #[test]
+    fn interval_prior_parses_its_three_settings_and_names_the_key_on_bad_input() {
+        let both = IntervalPrior {
+            implicit: true,
+            standard: true,
+        };
+        assert_eq!(prior_of(None).unwrap(), both);
+        assert_eq!(prior_of(Some("on")).unwrap(), both);
+        let imp = prior_of(Some("implicit")).unwrap();
+        assert!(imp.implicit && !imp.standard);
+        let off = prior_of(Some("off")).unwrap();
+        assert!(!off.implicit && !off.standard);
+        match prior_of(Some("yes")) {
+            Err(LocalizationError::Param { key, msg }) => {
+                assert_eq!(key, "interval_prior");
+                assert!(msg.contains("'yes'"), "{msg}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
 }

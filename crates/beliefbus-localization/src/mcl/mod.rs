@@ -11,10 +11,16 @@
 //! estimate:            Σ_j W_n^j X_n^j
 //! ```
 //!
+//! With the interval prior ([`interval_prior`], [`Localizer::set_interval_prior`])
+//! a step without laser data moves each particle by the mean model and
+//! accumulates its noise, C ← F C Fᵀ + Σ₁, and the next laser step's
+//! proposal draws the whole interval's noise from N(f, F C Fᵀ + Σ₁).
+//!
 //! Both filters draw exactly three standard normals per particle per step
-//! from the generator they are given (the motion noise, or ξ of the linear
-//! map) and one uniform per resampling, so with the same seed they use the
-//! same random numbers wherever the algorithms allow.
+//! (with the interval prior: per laser step) from the generator they are
+//! given (the motion noise, or ξ of the linear map) and one uniform per
+//! resampling, so with the same seed they use the same random numbers
+//! wherever the algorithms allow.
 
 pub mod implicit;
 pub mod interval_prior;
