@@ -56,5 +56,8 @@ fn interval_prior_lowers_implicit_mcls_error_at_few_samples() {
     let n = d.len() as f64;
     let mean = d.iter().sum::<f64>() / n;
     let se = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
-    assert!(mean < 0.0 && -mean > 3.0 * se, "on − off: {mean} ± {se} ({d:?})");
+    assert!(
+        mean < 0.0 && -mean > 3.0 * se,
+        "on − off: {mean} ± {se} ({d:?})"
+    );
 }

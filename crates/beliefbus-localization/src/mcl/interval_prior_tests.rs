@@ -149,8 +149,11 @@ fn drive(f: &mut dyn Localizer, on: bool) {
     let laser = LaserNoise::default();
     let mut rng = stream(21, 4);
     f.set_interval_prior(on);
-    f.particles_mut()
-        .init(&Pose::new(0.0, 0.0, 0.05), &Pose::new(0.3, 0.3, 0.02), &mut rng);
+    f.particles_mut().init(
+        &Pose::new(0.0, 0.0, 0.05),
+        &Pose::new(0.3, 0.3, 0.02),
+        &mut rng,
+    );
     for (n, (&u, o)) in us.iter().zip(&obs).enumerate() {
         let noise = StepNoise::new(&ute, u, &MotionNoise::default()).unwrap();
         let s = LaserStep {
@@ -213,7 +216,9 @@ fn gaussian_f_with_accumulated_noise_gives_constant_implicit_weights() {
     let norms: Vec<f64> = (0..f.set.len())
         .map(|j| ms.prior(&f.set.x[j], &f.set.acc[j], u).norm)
         .collect();
-    let spread = norms.iter().fold(0.0f64, |a, &b| a.max((b - norms[0]).abs()));
+    let spread = norms
+        .iter()
+        .fold(0.0f64, |a, &b| a.max((b - norms[0]).abs()));
     assert!(spread > 1.0, "normalisers should differ: {norms:?}");
     let laser = LaserNoise::default();
     let s = LaserStep {
