@@ -13,6 +13,18 @@
 //! of F^j are the same for every particle (det Σ₁ does not depend on the
 //! heading, see [`crate::vehicle`]), so they cancel.
 //!
+//! With the interval prior ([`super::interval_prior`]) the prior term of
+//! F^j is N(f_n^j, Σ^j), Σ^j = F C^j Fᵀ + Σ₁ with C^j the noise particle j
+//! accumulated since the last scan, so the Newton step and the linear map
+//! steer the whole interval's noise by the scan. Σ^j differs by particle,
+//! so its normaliser enters the weight:
+//!
+//! ```text
+//! W_n^j ∝ W_{n−1}^j e^{½ ξᵀξ − F^j(X_n^j)} |Σ^j|^{−½} / (det L^j |Σ₁|^{−½})
+//! ```
+//!
+//! (the common |Σ₁|^{−½} divided out, so with C^j = 0 nothing changes).
+//!
 //! Should Newton fail for a particle (a non-finite iterate: for a particle
 //! far from the data, F^j can have a second basin at a landmark, where the
 //! bearing is undefined and the Hessian blows up, and Newton may walk into
@@ -22,6 +34,7 @@
 //! a function of the particle's own past, so the weights stay exact. The
 //! fallbacks are counted.
 
+use super::interval_prior::MotionStep;
 use super::newton::{minimise, NewtonSettings, Objective};
 use super::particles::ParticleSet;
 use super::{LaserStep, Localizer};
@@ -29,6 +42,7 @@ use crate::carpark::normal3;
 use crate::error::LocalizationError;
 use crate::laser::term_cost;
 use beliefbus_core::rng::SimRng;
+use nalgebra::Matrix3;
 
 /// Implicit MCL with M particles.
 #[derive(Clone, Debug)]
@@ -81,20 +95,33 @@ impl Localizer for ImplicitMcl {
             laser,
             step,
         } = *s;
-        for (x, lw) in self.set.x.iter_mut().zip(self.set.logw.iter_mut()) {
+        let ms = MotionStep::new(ute, noise);
+        let set = &mut self.set;
+        for ((x, lw), c) in set
+            .x
+            .iter_mut()
+            .zip(set.logw.iter_mut())
+            .zip(set.acc.iter_mut())
+        {
+            let prior = ms.prior(x, c, u);
+            let beta = x[2];
+            *c = Matrix3::zeros();
             let obj = Objective {
-                f: ute.predict_mean(x, u),
-                prec: noise.precision(x[2]),
+                f: prior.f,
+                prec: prior.prec,
                 obs,
                 map,
                 laser: *laser,
             };
+            // The prior's normaliser relative to the one step's, common to
+            // all particles when no noise was accumulated (exactly 0 then).
+            let rel_norm = prior.norm - ms.motion_norm;
             let xi = normal3(rng);
             let sample = minimise(&obj, &self.newton, step).ok().and_then(|m| {
                 self.newton_iters += m.iters;
                 let y = m.l.tr_solve_lower_triangular(&xi)?;
                 let xn = m.mu + y;
-                let inc = 0.5 * xi.dot(&xi) - obj.value(&xn) - m.log_det_l;
+                let inc = 0.5 * xi.dot(&xi) - obj.value(&xn) - m.log_det_l + rel_norm;
                 inc.is_finite().then_some((xn, inc))
             });
             match sample {
@@ -104,16 +131,16 @@ impl Localizer for ImplicitMcl {
                 }
                 None => {
                     self.fallbacks += 1;
-                    // The implicit weights above leave out the motion
-                    // prior's |Σ₁|^{−½}, common to the implicit particles;
-                    // a fallback's likelihood weight carries no prior term,
-                    // so it takes the same omission, +½ log det Σ₁, to stay
-                    // on their scale.
-                    let log_det_prec = obj.prec.determinant().ln();
+                    // The implicit weights above leave out the one step's
+                    // |Σ₁|^{−½}, common to the implicit particles; a
+                    // fallback draws from the prior, so its likelihood
+                    // weight carries no prior term and takes the same
+                    // omission, +½ log det Σ₁, to stay on their scale.
+                    let log_det_prec = noise.precision(beta).determinant().ln();
                     if log_det_prec.is_finite() {
                         *lw -= 0.5 * log_det_prec;
                     }
-                    *x = obj.f + noise.draw(x[2], &xi);
+                    *x = prior.draw(&xi);
                     for o in obs {
                         *lw -= term_cost(x, map[o.landmark], o, laser);
                     }

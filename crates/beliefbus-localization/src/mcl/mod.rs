@@ -11,17 +11,24 @@
 //! estimate:            Σ_j W_n^j X_n^j
 //! ```
 //!
+//! With the interval prior ([`interval_prior`], [`Localizer::set_interval_prior`])
+//! a step without laser data moves each particle by the mean model and
+//! accumulates its noise, C ← F C Fᵀ + Σ₁, and the next laser step's
+//! proposal draws the whole interval's noise from N(f, F C Fᵀ + Σ₁).
+//!
 //! Both filters draw exactly three standard normals per particle per step
-//! from the generator they are given (the motion noise, or ξ of the linear
-//! map) and one uniform per resampling, so with the same seed they use the
-//! same random numbers wherever the algorithms allow.
+//! (with the interval prior: per laser step) from the generator they are
+//! given (the motion noise, or ξ of the linear map) and one uniform per
+//! resampling, so with the same seed they use the same random numbers
+//! wherever the algorithms allow.
 
 pub mod implicit;
+pub mod interval_prior;
 pub mod newton;
 pub mod particles;
 pub mod standard;
 
-use crate::carpark::{normal3, CarPark};
+use crate::carpark::CarPark;
 use crate::error::LocalizationError;
 use crate::geometry::{Point, Pose};
 use crate::laser::{LaserNoise, Observation};
@@ -60,12 +67,16 @@ pub trait Localizer {
         None
     }
 
-    /// A step without laser data: every particle moves by the motion model.
+    /// A step without laser data ([`ParticleSet::predict`]): every
+    /// particle moves by the motion model, or with the interval prior
+    /// follows the mean model and accumulates its noise.
     fn predict(&mut self, ute: &Ute, u: Control, noise: &StepNoise, rng: &mut SimRng) {
-        for x in self.particles_mut().x.iter_mut() {
-            let xi = normal3(rng);
-            *x = ute.predict_mean(x, u) + noise.draw(x[2], &xi);
-        }
+        self.particles_mut().predict(ute, u, noise, rng);
+    }
+
+    /// Turn the interval prior on or off (off at construction).
+    fn set_interval_prior(&mut self, on: bool) {
+        self.particles_mut().deferred = on;
     }
 }
 
@@ -108,3 +119,6 @@ pub fn run(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod interval_prior_tests;

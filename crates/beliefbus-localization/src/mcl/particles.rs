@@ -5,12 +5,15 @@
 //! (ESS < threshold · M), and the weighted-mean estimate. Buffers are sized
 //! once; a step allocates nothing.
 
+use super::interval_prior::MotionStep;
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
 use crate::geometry::Pose;
+use crate::vehicle::{Control, StepNoise, Ute};
 use beliefbus_core::filter::resample::systematic;
 use beliefbus_core::math::weights::normalise;
 use beliefbus_core::rng::SimRng;
+use nalgebra::Matrix3;
 
 /// M particles with their weights and resampling bookkeeping.
 #[derive(Clone, Debug)]
@@ -20,8 +23,18 @@ pub struct ParticleSet {
     pub logw: Vec<f64>,
     /// Normalised weights of the last reweighting.
     pub w: Vec<f64>,
+    /// Per particle, the covariance (world frame) of its pose given its
+    /// pose at the last scan, linearised along the mean prediction
+    /// ([`super::interval_prior::MotionStep::accumulate`]); zero while
+    /// `deferred` is off.
+    pub acc: Vec<Matrix3<f64>>,
+    /// The interval prior: steps without a scan move each particle by the
+    /// mean model and accumulate its noise in `acc`, for the next scan's
+    /// proposal to draw the whole interval's noise.
+    pub deferred: bool,
     anc: Vec<usize>,
     tmp: Vec<Pose>,
+    tmp_acc: Vec<Matrix3<f64>>,
     /// Resample when ESS < ess_threshold · M.
     pub ess_threshold: f64,
     /// Reweightings so far, resamplings so far, and the sum of ESS/M.
@@ -51,8 +64,11 @@ impl ParticleSet {
             x: vec![Pose::zeros(); m],
             logw: vec![0.0; m],
             w: vec![1.0 / m as f64; m],
+            acc: vec![Matrix3::zeros(); m],
+            deferred: false,
             anc: vec![0; m],
             tmp: vec![Pose::zeros(); m],
+            tmp_acc: vec![Matrix3::zeros(); m],
             ess_threshold,
             updates: 0,
             resamplings: 0,
@@ -76,6 +92,7 @@ impl ParticleSet {
         for p in self.x.iter_mut() {
             *p = mean + std.component_mul(&normal3(rng));
         }
+        self.acc.fill(Matrix3::zeros());
         self.logw.fill(0.0);
         self.w.fill(1.0 / m as f64);
         self.updates = 0;
@@ -93,10 +110,12 @@ impl ParticleSet {
         if s.ess < self.ess_threshold * m as f64 {
             systematic(&self.w, rng, &mut self.anc)
                 .map_err(|_| LocalizationError::Degenerate { step })?;
-            for (t, &a) in self.tmp.iter_mut().zip(&self.anc) {
-                *t = self.x[a];
+            for (k, &a) in self.anc.iter().enumerate() {
+                self.tmp[k] = self.x[a];
+                self.tmp_acc[k] = self.acc[a];
             }
             std::mem::swap(&mut self.x, &mut self.tmp);
+            std::mem::swap(&mut self.acc, &mut self.tmp_acc);
             self.logw.fill(0.0);
             self.w.fill(1.0 / m as f64);
             self.resamplings += 1;
@@ -107,6 +126,25 @@ impl ParticleSet {
             }
         }
         Ok(s.ess)
+    }
+
+    /// A step without a scan; the weights do not change. Without
+    /// `deferred` each pose moves by the motion model,
+    /// X^j ← f(X^j, u) + ΔB^j (three standard normals per particle); with
+    /// it each follows the mean model and accumulates its noise
+    /// ([`MotionStep::accumulate`], no random numbers).
+    pub fn predict(&mut self, ute: &Ute, u: Control, noise: &StepNoise, rng: &mut SimRng) {
+        if self.deferred {
+            let ms = MotionStep::new(ute, noise);
+            for (x, c) in self.x.iter_mut().zip(self.acc.iter_mut()) {
+                ms.accumulate(x, c, u);
+            }
+        } else {
+            for x in self.x.iter_mut() {
+                let xi = normal3(rng);
+                *x = ute.predict_mean(x, u) + noise.draw(x[2], &xi);
+            }
+        }
     }
 
     /// The weighted mean: positions averaged, heading by the mean of

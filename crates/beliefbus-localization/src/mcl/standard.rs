@@ -5,13 +5,22 @@
 //! X_n^j = f_n^j + ΔB^j,   W_n^j ∝ W_{n−1}^j p(z_n | X_n^j)
 //! log p(z_n | x) = −Σ_i ½ ‖z^i − h(x, m^i)‖²_{Σ₂⁻¹} + const.
 //! ```
+//!
+//! With the interval prior ([`super::interval_prior`]) the motion model is
+//! the prior N(f_n^j, F C Fᵀ + Σ₁) of the whole interval since the last
+//! scan: the proposal is still the prior, so the weight is still the
+//! likelihood alone. The filter then targets the same (linearised)
+//! transition as implicit MCL with the prior, so the two differ only in
+//! their proposals.
 
+use super::interval_prior::MotionStep;
 use super::particles::ParticleSet;
 use super::{LaserStep, Localizer};
 use crate::carpark::normal3;
 use crate::error::LocalizationError;
 use crate::laser::term_cost;
 use beliefbus_core::rng::SimRng;
+use nalgebra::Matrix3;
 
 /// Standard MCL with M particles.
 #[derive(Clone, Debug)]
@@ -49,9 +58,17 @@ impl Localizer for StandardMcl {
             laser,
             step,
         } = *s;
-        for (x, lw) in self.set.x.iter_mut().zip(self.set.logw.iter_mut()) {
+        let ms = MotionStep::new(ute, noise);
+        let set = &mut self.set;
+        for ((x, lw), c) in set
+            .x
+            .iter_mut()
+            .zip(set.logw.iter_mut())
+            .zip(set.acc.iter_mut())
+        {
             let xi = normal3(rng);
-            *x = ute.predict_mean(x, u) + noise.draw(x[2], &xi);
+            *x = ms.prior(x, c, u).draw(&xi);
+            *c = Matrix3::zeros();
             for o in obs {
                 *lw -= term_cost(x, map[o.landmark], o, laser);
             }

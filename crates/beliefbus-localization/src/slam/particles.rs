@@ -220,12 +220,9 @@ impl<L: Clone> SlamParticles<L> {
         rng: &mut SimRng,
     ) -> Pose {
         if self.deferred {
-            let s0 = noise.chol * noise.chol.transpose();
+            let ms = crate::mcl::interval_prior::MotionStep::new(ute, noise);
             for (x, c) in self.x.iter_mut().zip(self.acc.iter_mut()) {
-                let fx = super::ekf::motion_jacobian(ute, x[2], u);
-                let t = crate::geometry::frame_rotation(x[2]);
-                *c = fx * *c * fx.transpose() + t * s0 * t.transpose();
-                *x = ute.predict_mean(x, u);
+                ms.accumulate(x, c, u);
             }
         } else {
             for x in self.x.iter_mut() {

@@ -12,10 +12,12 @@ use super::scan_assoc::ScanAssoc;
 use super::shared_assoc::shared_offers;
 use super::{SlamModel, SlamStats};
 use crate::error::LocalizationError;
-use crate::geometry::{frame_rotation, Point, Pose};
+use crate::geometry::{Point, Pose};
+use crate::mcl::interval_prior::MotionStep;
+pub use crate::mcl::interval_prior::StepPrior;
 use crate::vehicle::{Control, StepNoise, Ute};
 use beliefbus_core::rng::SimRng;
-use nalgebra::{Matrix2, Matrix3, Vector3};
+use nalgebra::{Matrix2, Matrix3};
 
 /// The step's constants.
 pub struct StepSetup {
@@ -38,81 +40,27 @@ pub struct StepSetup {
     pub motion_norm: f64,
 }
 
-/// One particle's prior for its pose at this step: N(f, Σ) with
-/// Σ = F C Fᵀ + Σ₁(β), C the noise accumulated since its last step with
-/// returns ([`SlamParticles::predict_only`]); Σ = Σ₁(β) when C = 0.
-///
-/// Why: returns arrive at a fraction of the odometry rate (Victoria Park:
-/// one scan per 8.6 odometry steps; the synthetic car park: none for 80
-/// steps in a laser gap). Drawing every step's noise from the motion model
-/// as it comes leaves only the last step's noise to the proposal (FastSLAM
-/// 2.0's Gaussian, implicit sampling's Newton), so the returns correct
-/// 1/k of the interval's spread and the rest is left to the weights; the
-/// association gate sees one step's Σ₁ where EKF-SLAM's sees the whole
-/// interval's P_xx. With C the whole interval's noise is drawn from the
-/// proposal and gated with. The interval's transition is the linearised
-/// Gaussian of EKF-SLAM's prediction, x_k | x_0 ~ N(f∘…∘f(x_0), C): the
-/// one approximation, second order in the interval's heading spread.
-#[derive(Clone, Copy, Debug)]
-pub struct StepPrior {
-    /// The mean prediction f(x, u).
-    pub f: Pose,
-    /// Σ (world frame).
-    pub cov: Matrix3<f64>,
-    /// Σ⁻¹.
-    pub prec: Matrix3<f64>,
-    /// −½ log det Σ: the prior density's normaliser.
-    pub norm: f64,
-    /// A factor of Σ for draws; `None`: the step's own T(β) C₀.
-    factor: Option<Matrix3<f64>>,
-    beta: f64,
-    chol0: Matrix3<f64>,
-}
-
-impl StepPrior {
-    /// A draw f + Σ^{1/2} ξ.
-    pub fn draw(&self, xi: &Vector3<f64>) -> Pose {
-        match &self.factor {
-            Some(c) => self.f + c * xi,
-            None => self.f + frame_rotation(self.beta) * (self.chol0 * xi),
-        }
-    }
-}
-
 impl StepSetup {
-    /// The prior of a particle at pose `x` with accumulated noise `acc`.
-    /// With `acc` = 0 it is the one step's N(f, Σ₁), computed exactly as
-    /// before the accumulation existed (same draws, same rounding).
+    /// The prior of a particle at pose `x` with accumulated noise `acc`
+    /// ([`MotionStep::prior`], shared with MCL): with `acc` = 0 the one
+    /// step's N(f, Σ₁), computed exactly as the motion model draws it.
+    ///
+    /// Why the interval prior: returns arrive at a fraction of the
+    /// odometry rate (Victoria Park: one scan per 8.6 odometry steps; the
+    /// synthetic car park: none for 80 steps in a laser gap), and with it
+    /// the whole interval's noise is drawn from the proposal and gated with
+    /// (EKF-SLAM's gate sees the whole interval's P_xx too).
     pub fn prior(&self, x: &Pose, acc: &Matrix3<f64>, u: Control) -> StepPrior {
-        let f = self.ute.predict_mean(x, u);
-        let t = frame_rotation(x[2]);
-        let step = StepPrior {
-            f,
-            cov: t * self.s0 * t.transpose(),
-            prec: self.noise.precision(x[2]),
-            norm: self.motion_norm,
-            factor: None,
-            beta: x[2],
-            chol0: self.noise.chol,
-        };
-        if *acc == Matrix3::zeros() {
-            return step;
-        }
-        let fx = super::ekf::motion_jacobian(&self.ute, x[2], u);
-        let cov = fx * acc * fx.transpose() + step.cov;
-        let cov = 0.5 * (cov + cov.transpose());
-        match cov.cholesky() {
-            Some(ch) => {
-                let l = ch.l();
-                StepPrior {
-                    cov,
-                    prec: ch.inverse(),
-                    norm: -(0..3).map(|i| l[(i, i)].ln()).sum::<f64>(),
-                    factor: Some(l),
-                    ..step
-                }
-            }
-            None => step,
+        self.motion().prior(x, acc, u)
+    }
+
+    /// The step's motion constants.
+    pub fn motion(&self) -> MotionStep<'_> {
+        MotionStep {
+            ute: &self.ute,
+            noise: &self.noise,
+            s0: self.s0,
+            motion_norm: self.motion_norm,
         }
     }
 }
@@ -158,7 +106,9 @@ pub fn begin_step<L: Clone>(
     p.stats.updates += 1;
     let model = *p.model;
     let r = model.r();
-    let s0 = noise.chol * noise.chol.transpose();
+    let MotionStep {
+        s0, motion_norm, ..
+    } = MotionStep::new(&ute, &noise);
     if p.shared && p.forced.is_empty() {
         p.scan.begin(obs.len());
         let aligned = obs.iter().enumerate().all(|(i, z)| {
@@ -170,7 +120,6 @@ pub fn begin_step<L: Clone>(
             }
         }
     }
-    let motion_norm = -(0..3).map(|i| noise.chol[(i, i)].ln()).sum::<f64>();
     Ok(Begin::Update(StepSetup {
         step,
         ute,
