@@ -31,14 +31,23 @@
 //! Which misses, when: the most recent misses are kept in a fixed ring
 //! ([`MissLog`], [`Budget::miss_log`]) with their start time on the
 //! stage's clock, wall and thread CPU time, context switches and kind;
-//! older ones are counted, never silently lost. Only a miss reads the
-//! thread's clocks: the on-time path stays a histogram record and a
-//! compare.
+//! older ones are counted, never silently lost. Each also carries the
+//! thread's page faults (minor and major) over the message: the start mark
+//! already makes the `getrusage` call that counts the switches, and the
+//! same call returns the faults, so they cost nothing more there. Only a
+//! miss reads the thread's clocks at the end: the on-time path stays a
+//! histogram record and a compare.
+//!
+//! Warm-up apart from steady state: a miss whose work started within the
+//! first `warmup_ns` after the stage's first recorded message
+//! ([`Budget::with_warmup`]) is also counted as a *warm-up* miss
+//! ([`Budget::warmup_misses`]). That splits the total, it never hides a
+//! miss: [`Budget::misses`] counts every one.
 
-use super::clock::{thread_cpu_ns, thread_switches};
+use super::clock::{thread_cpu_ns, thread_usage, ThreadUsage};
 use super::hist::LatencyHist;
 pub use super::miss_log::MissKind;
-use super::miss_log::{Miss, MissLog};
+use super::miss_log::{Faults, Miss, MissLog};
 
 /// Compute-time accounting against a budget.
 #[derive(Clone, Debug)]
@@ -49,60 +58,78 @@ pub struct Budget {
     host: u64,
     /// Thread CPU time at the last [`Budget::start`] (0: never marked).
     cpu_start_ns: u64,
-    /// The thread's context switches at the last [`Budget::start`].
-    switches_start: u64,
+    /// The thread's switches and faults at the last [`Budget::start`].
+    usage_start: ThreadUsage,
     compute: LatencyHist,
     response: LatencyHist,
     late: u64,
     /// The most recent misses.
     log: MissLog,
+    /// Length of the warm-up (ns from the first recorded message).
+    warmup_ns: u64,
+    /// Start of the first recorded message (`u64::MAX`: none yet).
+    first_ns: u64,
+    /// Misses that started in the warm-up.
+    warmup_misses: u64,
 }
 
 impl Budget {
     /// A budget of `budget_ns` per message (0: no budget, nothing misses).
     pub fn new(budget_ns: u64) -> Self {
+        Self::with_warmup(budget_ns, 0)
+    }
+
+    /// A budget of `budget_ns` per message whose misses in the first
+    /// `warmup_ns` after the first recorded message also count as warm-up
+    /// misses.
+    pub fn with_warmup(budget_ns: u64, warmup_ns: u64) -> Self {
         Self {
             budget_ns,
             misses: 0,
             preempted: 0,
             host: 0,
             cpu_start_ns: 0,
-            switches_start: 0,
+            usage_start: ThreadUsage::UNKNOWN,
             compute: LatencyHist::new(),
             response: LatencyHist::new(),
             late: 0,
             log: MissLog::new(),
+            warmup_ns,
+            first_ns: u64::MAX,
+            warmup_misses: 0,
         }
     }
 
     /// Mark the start of a message's work for the preempted/overrun and
-    /// host split (a thread-CPU clock read and a context-switch count).
+    /// host split and the miss log's faults (a thread-CPU clock read and
+    /// one `getrusage`).
     pub fn start(&mut self) {
-        self.start_at(thread_cpu_ns(), thread_switches());
+        self.start_at(thread_cpu_ns(), thread_usage());
     }
 
-    /// [`Budget::start`] with the thread's CPU clock and switch count given.
-    fn start_at(&mut self, cpu_ns: u64, switches: u64) {
+    /// [`Budget::start`] with the thread's CPU clock and usage given.
+    fn start_at(&mut self, cpu_ns: u64, usage: ThreadUsage) {
         self.cpu_start_ns = cpu_ns;
-        self.switches_start = switches;
+        self.usage_start = usage;
     }
 
     /// Record one message that started at `start_ns` and finished at
     /// `end_ns` (both on the stage's clock); returns true if it missed the
     /// budget.
     pub fn record(&mut self, start_ns: u64, end_ns: u64) -> bool {
-        self.record_probed(start_ns, end_ns, || (thread_cpu_ns(), thread_switches()))
+        self.record_probed(start_ns, end_ns, || (thread_cpu_ns(), thread_usage()))
     }
 
     /// [`Budget::record`] with `now` giving the thread's CPU clock and
-    /// context-switch count at the end (read only for a miss).
+    /// usage at the end (read only for a miss).
     fn record_probed(
         &mut self,
         start_ns: u64,
         end_ns: u64,
-        now: impl FnOnce() -> (u64, u64),
+        now: impl FnOnce() -> (u64, ThreadUsage),
     ) -> bool {
         let dt = end_ns.saturating_sub(start_ns);
+        self.first_ns = self.first_ns.min(start_ns);
         self.compute.record(dt);
         let miss = self.budget_ns > 0 && dt > self.budget_ns;
         if miss {
@@ -114,18 +141,31 @@ impl Budget {
     /// Classify, count and log a miss of wall time `wall_ns` that started
     /// at `start_ns`.
     #[cold]
-    fn count_miss(&mut self, start_ns: u64, wall_ns: u64, now: impl FnOnce() -> (u64, u64)) {
+    fn count_miss(
+        &mut self,
+        start_ns: u64,
+        wall_ns: u64,
+        now: impl FnOnce() -> (u64, ThreadUsage),
+    ) {
         self.misses += 1;
-        let (kind, cpu_ns, switches) = if self.cpu_start_ns > 0 {
-            let (cpu_now, sw_now) = now();
+        if start_ns < self.first_ns.saturating_add(self.warmup_ns) {
+            self.warmup_misses += 1;
+        }
+        let (kind, cpu_ns, switches, faults) = if self.cpu_start_ns > 0 {
+            let (cpu_now, u) = now();
+            let u0 = self.usage_start;
             let cpu = cpu_now.saturating_sub(self.cpu_start_ns);
-            let kind = classify(self.budget_ns, cpu, self.switches_start, sw_now);
-            let known = self.switches_start != u64::MAX && sw_now != u64::MAX;
-            let switches = known.then(|| sw_now.saturating_sub(self.switches_start));
-            (kind, Some(cpu), switches)
+            let kind = classify(self.budget_ns, cpu, u0.switches, u.switches);
+            let known = u0 != ThreadUsage::UNKNOWN && u != ThreadUsage::UNKNOWN;
+            let switches = known.then(|| u.switches.saturating_sub(u0.switches));
+            let faults = known.then(|| Faults {
+                minor: u.minor_faults.saturating_sub(u0.minor_faults),
+                major: u.major_faults.saturating_sub(u0.major_faults),
+            });
+            (kind, Some(cpu), switches, faults)
         } else {
             // No mark: nothing says the time was taken from the stage.
-            (MissKind::Overrun, None, None)
+            (MissKind::Overrun, None, None, None)
         };
         match kind {
             MissKind::Overrun => {}
@@ -140,6 +180,7 @@ impl Budget {
             wall_ns,
             cpu_ns,
             switches,
+            faults,
             kind,
         });
     }
@@ -177,6 +218,18 @@ impl Budget {
     /// Messages over budget so far.
     pub fn misses(&self) -> u64 {
         self.misses
+    }
+
+    /// Of [`Budget::misses`], those whose work started in the warm-up (the
+    /// first `warmup_ns` after the first recorded message); the rest,
+    /// `misses − warmup_misses`, are the steady state's.
+    pub fn warmup_misses(&self) -> u64 {
+        self.warmup_misses
+    }
+
+    /// The warm-up's length in ns ([`Budget::with_warmup`]).
+    pub fn warmup_ns(&self) -> u64 {
+        self.warmup_ns
     }
 
     /// Of [`Budget::misses`], those whose own CPU time stayed within the
@@ -305,51 +358,111 @@ mod tests {
         assert!(b.miss_log().iter().nth(1).unwrap().cpu_ns.unwrap() > budget);
     }
 
-    /// A miss by hand: thread CPU clock and switch count at the start mark
-    /// and at the end.
+    /// Thread usage by hand: switches, minor and major faults.
+    fn u(switches: u64, minor_faults: u64, major_faults: u64) -> ThreadUsage {
+        ThreadUsage {
+            switches,
+            minor_faults,
+            major_faults,
+        }
+    }
+
+    /// A miss by hand: thread CPU clock and usage at the start mark and at
+    /// the end.
     fn miss_at(
         b: &mut Budget,
         start_ns: u64,
         end_ns: u64,
-        (cpu0, sw0): (u64, u64),
-        (cpu1, sw1): (u64, u64),
+        (cpu0, u0): (u64, ThreadUsage),
+        (cpu1, u1): (u64, ThreadUsage),
     ) -> bool {
-        b.start_at(cpu0, sw0);
-        b.record_probed(start_ns, end_ns, || (cpu1, sw1))
+        b.start_at(cpu0, u0);
+        b.record_probed(start_ns, end_ns, || (cpu1, u1))
+    }
+
+    fn faults(minor: u64, major: u64) -> Option<Faults> {
+        Some(Faults { minor, major })
     }
 
     #[test]
-    fn the_log_lists_each_miss_with_its_time_cpu_switches_and_kind() {
+    fn the_log_lists_each_miss_with_its_time_cpu_switches_faults_and_kind() {
         let mut b = Budget::new(100);
         // On time: nothing listed, the clocks are not even read.
-        b.start_at(1_000, 5);
+        b.start_at(1_000, u(5, 100, 0));
         assert!(!b.record_probed(10_000, 10_100, || panic!("read on time")));
-        // 150 wall, 40 on the CPU, no switch: the host's.
-        assert!(miss_at(&mut b, 20_000, 20_150, (2_000, 5), (2_040, 5)));
-        // 300 wall, 50 on the CPU, 2 switches: preempted.
-        assert!(miss_at(&mut b, 30_000, 30_300, (3_000, 7), (3_050, 9)));
-        // 200 wall, 180 on the CPU: its own overrun.
-        assert!(miss_at(&mut b, 40_000, 40_200, (4_000, 9), (4_180, 9)));
-        // Switch counts unreadable: preempted, switches unknown.
-        assert!(miss_at(
+        // 150 wall, 40 on the CPU, no switch, no fault: the host's.
+        let m = miss_at(
+            &mut b,
+            20_000,
+            20_150,
+            (2_000, u(5, 100, 0)),
+            (2_040, u(5, 100, 0)),
+        );
+        assert!(m);
+        // 300 wall, 50 on the CPU, 2 switches, 240 minor faults: preempted.
+        let m = miss_at(
+            &mut b,
+            30_000,
+            30_300,
+            (3_000, u(7, 100, 0)),
+            (3_050, u(9, 340, 0)),
+        );
+        assert!(m);
+        // 200 wall, 180 on the CPU, 3 minor and 1 major fault: an overrun.
+        let m = miss_at(
+            &mut b,
+            40_000,
+            40_200,
+            (4_000, u(9, 340, 2)),
+            (4_180, u(9, 343, 3)),
+        );
+        assert!(m);
+        // Usage unreadable: preempted, switches and faults unknown.
+        let m = miss_at(
             &mut b,
             50_000,
             50_101,
-            (5_000, u64::MAX),
-            (5_010, u64::MAX)
-        ));
+            (5_000, ThreadUsage::UNKNOWN),
+            (5_010, ThreadUsage::UNKNOWN),
+        );
+        assert!(m);
         // A compute time at the budget is on time.
-        assert!(!miss_at(&mut b, 60_000, 60_100, (6_000, 9), (6_000, 9)));
+        let m = miss_at(
+            &mut b,
+            60_000,
+            60_100,
+            (6_000, u(9, 343, 3)),
+            (6_000, u(9, 343, 3)),
+        );
+        assert!(!m);
         let want = [
-            (20_000, 150, Some(40), Some(0), MissKind::Host),
-            (30_000, 300, Some(50), Some(2), MissKind::Preempted),
-            (40_000, 200, Some(180), Some(0), MissKind::Overrun),
-            (50_000, 101, Some(10), None, MissKind::Preempted),
+            (20_000, 150, Some(40), Some(0), faults(0, 0), MissKind::Host),
+            (
+                30_000,
+                300,
+                Some(50),
+                Some(2),
+                faults(240, 0),
+                MissKind::Preempted,
+            ),
+            (
+                40_000,
+                200,
+                Some(180),
+                Some(0),
+                faults(3, 1),
+                MissKind::Overrun,
+            ),
+            (50_000, 101, Some(10), None, None, MissKind::Preempted),
         ];
         let got: Vec<_> = b
             .miss_log()
             .iter()
-            .map(|m| (m.start_ns, m.wall_ns, m.cpu_ns, m.switches, m.kind))
+            .map(|m| {
+                (
+                    m.start_ns, m.wall_ns, m.cpu_ns, m.switches, m.faults, m.kind,
+                )
+            })
             .collect();
         assert_eq!(got, want);
         assert_eq!((b.misses(), b.preempted(), b.host()), (4, 3, 1));
@@ -360,8 +473,8 @@ mod tests {
         assert!(unmarked.record_probed(7_000, 7_500, || panic!("no mark to read against")));
         let m = unmarked.miss_log().iter().next().copied().unwrap();
         assert_eq!(
-            (m.cpu_ns, m.switches, m.kind),
-            (None, None, MissKind::Overrun)
+            (m.cpu_ns, m.switches, m.faults, m.kind),
+            (None, None, None, MissKind::Overrun)
         );
         assert_eq!((unmarked.misses(), unmarked.preempted()), (1, 0));
     }
@@ -372,10 +485,17 @@ mod tests {
         let mut b = Budget::new(100);
         let n = MISS_LOG_CAPACITY as u64 + 9;
         // Miss i: host when i % 3 == 0, preempted when 1, overrun when 2;
-        // on-time messages in between are never listed.
+        // on-time messages in between are never listed. Miss i takes i
+        // minor faults.
         for i in 0..n {
             let t = 1_000_000 * i;
-            assert!(!miss_at(&mut b, t, t + 50, (10, 1), (20, 1)));
+            assert!(!miss_at(
+                &mut b,
+                t,
+                t + 50,
+                (10, u(1, 0, 0)),
+                (20, u(1, 0, 0))
+            ));
             let (cpu, sw) = match i % 3 {
                 0 => (60, 1),
                 1 => (60, 2),
@@ -385,8 +505,8 @@ mod tests {
                 &mut b,
                 t + 100,
                 t + 300 + i,
-                (10, 1),
-                (10 + cpu, sw)
+                (10, u(1, 7, 0)),
+                (10 + cpu, u(sw, 7 + i, 0))
             ));
         }
         let log = b.miss_log();
@@ -397,12 +517,83 @@ mod tests {
         for (m, i) in log.iter().zip(9..n) {
             let kind = [MissKind::Host, MissKind::Preempted, MissKind::Overrun][(i % 3) as usize];
             assert_eq!(
-                (m.start_ns, m.wall_ns, m.kind),
-                (1_000_000 * i + 100, 200 + i, kind)
+                (m.start_ns, m.wall_ns, m.kind, m.faults),
+                (1_000_000 * i + 100, 200 + i, kind, faults(i, 0))
             );
         }
         // The counters span every miss: 14 of 0..41 are ≡ 0 (mod 3), 14 ≡ 1.
         assert_eq!((b.host(), b.preempted()), (14, 28));
+    }
+
+    #[test]
+    fn misses_in_the_warm_up_are_counted_apart_and_still_in_the_total() {
+        // Warm-up of 1000 ns from the first recorded message (at 5_000,
+        // on time): misses starting at 5_000..5_999 are the warm-up's.
+        let mut b = Budget::with_warmup(100, 1_000);
+        let z = (0, u(0, 0, 0));
+        assert!(!miss_at(&mut b, 5_000, 5_050, z, z));
+        for (start, warm) in [
+            (5_200, true),
+            (5_999, true),
+            (6_000, false),
+            (7_500, false),
+            (9_000, false),
+        ] {
+            let before = b.warmup_misses();
+            assert!(miss_at(&mut b, start, start + 101, z, (1, u(1, 0, 0))));
+            assert_eq!(b.warmup_misses() - before, warm as u64, "start {start}");
+        }
+        assert_eq!((b.misses(), b.warmup_misses()), (5, 2));
+        assert_eq!(b.warmup_ns(), 1_000);
+        // The window opens at the first message even when that one missed,
+        // and every miss is in the total, listed or not.
+        let mut c = Budget::with_warmup(100, 1_000);
+        for i in 0..40u64 {
+            assert!(miss_at(&mut c, 8_000 + 100 * i, 8_200 + 100 * i, z, z));
+        }
+        // Starts 8_000, 8_100, ..., 8_900 are in [8_000, 9_000): 10.
+        assert_eq!((c.misses(), c.warmup_misses()), (40, 10));
+        assert_eq!(
+            c.misses(),
+            c.miss_log().len() as u64 + c.miss_log().overwritten()
+        );
+        // No warm-up: nothing is the warm-up's.
+        let mut d = Budget::new(100);
+        assert!(miss_at(&mut d, 1, 500, z, z));
+        assert_eq!((d.misses(), d.warmup_misses()), (1, 0));
+    }
+
+    #[test]
+    fn a_miss_spent_faulting_pages_in_lists_its_faults() {
+        // Touch 256 fresh anonymous pages inside a message that cannot meet
+        // a 1 ns budget: its log entry counts at least one fault a page.
+        const PAGES: usize = 256;
+        let len = PAGES * 4096;
+        // SAFETY: a private anonymous mapping, unmapped below.
+        let p = unsafe {
+            libc::mmap(
+                std::ptr::null_mut(),
+                len,
+                libc::PROT_READ | libc::PROT_WRITE,
+                libc::MAP_PRIVATE | libc::MAP_ANONYMOUS,
+                -1,
+                0,
+            )
+        };
+        assert_ne!(p, libc::MAP_FAILED);
+        let mut b = Budget::new(1);
+        b.start();
+        let t0 = crate::clock::now_ns();
+        for i in 0..PAGES {
+            // SAFETY: inside the mapping.
+            unsafe { std::ptr::write_volatile((p as *mut u8).add(i * 4096), 1) };
+        }
+        assert!(b.record(t0, crate::clock::now_ns()));
+        // SAFETY: the mapping made above.
+        unsafe { libc::munmap(p, len) };
+        let f = b.miss_log().iter().next().unwrap().faults.unwrap();
+        assert!(f.minor >= PAGES as u64, "{f:?}");
+        assert_eq!(f.major, 0);
     }
 
     #[test]
