@@ -234,7 +234,8 @@ impl Metrics {
             dropped: 0,
             dropped_by_reason: [0; STATS_DROP_REASONS],
             rejected_by_reason: [0; STATS_REASONS],
-            budget: Budget::new(budget_ns),
+            // The misses of the first `warmup_ns` are also counted apart.
+            budget: Budget::with_warmup(budget_ns, warmup_ns),
             hops: hops.iter().map(|&h| (h, LatencyHist::new())).collect(),
             warmup_ns,
             first_meas_ns: None,
@@ -312,6 +313,8 @@ impl Metrics {
             deadline_misses: self.budget.misses(),
             deadline_misses_preempted: self.budget.preempted(),
             deadline_misses_host: self.budget.host(),
+            deadline_misses_warmup: self.budget.warmup_misses(),
+            miss_warmup_ns: self.budget.warmup_ns(),
             dropped_stale_idle: self.stale_while_idle,
             budget_ns: self.budget.budget_ns(),
             compute: Percentiles::from(self.budget.compute()),
