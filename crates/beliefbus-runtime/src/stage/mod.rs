@@ -409,7 +409,8 @@ impl StatsPort {
     }
 
     /// Publish now; `last` marks the final report. The first report says
-    /// the stage is set up: its memory is locked then, if asked for.
+    /// the stage is set up: its memory is locked then, if asked for. After
+    /// the final one the calling thread leaves real-time scheduling.
     pub fn publish(
         &mut self,
         m: &Metrics,
@@ -435,6 +436,15 @@ impl StatsPort {
         self.seq += 1;
         self.next_ns = now_ns + self.period_ns;
         self.publisher.publish(&s)?;
+        if last {
+            // Only teardown follows: closing the ports and the process's
+            // exit (unmapping its locked memory, ms of kernel work) must
+            // not preempt the lower-priority stages on this core that are
+            // still finishing their last messages (the plant stops first:
+            // at FIFO 80 its exit delayed control's last message by
+            // ~0.8 ms).
+            crate::rt::sched::leave_real_time();
+        }
         Ok(s)
     }
 
