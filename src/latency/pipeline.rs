@@ -69,6 +69,15 @@ pub struct StageFigures {
     /// switched out (interrupts or the hypervisor took the time).
     #[serde(default)]
     pub deadline_misses_host: u64,
+    /// Of the misses, those that started in the stage's warm-up (the first
+    /// `miss_warmup_s` after its first message) and those after it; the
+    /// two add up to `deadline_misses`.
+    #[serde(default)]
+    pub deadline_misses_warmup: u64,
+    #[serde(default)]
+    pub deadline_misses_after_warmup: u64,
+    #[serde(default)]
+    pub miss_warmup_s: f64,
     pub budget_us: Option<f64>,
     pub compute_p50_us: Option<f64>,
     pub compute_p99_us: Option<f64>,
@@ -202,6 +211,11 @@ fn stage_figures(report: &serde_json::Value) -> Vec<(String, StageFigures)> {
                     deadline_misses: s["deadline_misses"].as_u64().unwrap_or(0),
                     deadline_misses_preempted: s["deadline_misses_preempted"].as_u64().unwrap_or(0),
                     deadline_misses_host: s["deadline_misses_host"].as_u64().unwrap_or(0),
+                    deadline_misses_warmup: s["deadline_misses_warmup"].as_u64().unwrap_or(0),
+                    deadline_misses_after_warmup: s["deadline_misses_after_warmup"]
+                        .as_u64()
+                        .unwrap_or(0),
+                    miss_warmup_s: s["miss_warmup_s"].as_f64().unwrap_or(0.0),
                     budget_us: s["budget_us"].as_f64(),
                     compute_p50_us: s["compute_p50_us"].as_f64(),
                     compute_p99_us: s["compute_p99_us"].as_f64(),
@@ -428,9 +442,12 @@ mod tests {
     fn a_stage_s_listed_misses_come_through_with_their_times() {
         let report = serde_json::json!({"stages": {"ingest": {
             "processed": 10, "deadline_misses": 3, "misses_not_listed": 1,
+            "deadline_misses_warmup": 2, "deadline_misses_after_warmup": 1,
+            "miss_warmup_s": 1.0,
             "misses": [
                 {"t_us": 12345678.4, "t_ns": 8312104233999u64, "wall_us": 115.8,
-                 "cpu_us": 116.4, "switches": 0, "kind": "overrun"},
+                 "cpu_us": 116.4, "switches": 0, "minor_faults": 240, "major_faults": 0,
+                 "kind": "overrun"},
                 {"t_us": 20000001.0, "t_ns": 8319758556000u64, "wall_us": 4331.0,
                  "cpu_us": null, "switches": null, "kind": "host"}
             ]
@@ -441,17 +458,25 @@ mod tests {
             f.misses.len() as u64 + f.misses_not_listed,
             f.deadline_misses
         );
+        assert_eq!(
+            f.deadline_misses_warmup + f.deadline_misses_after_warmup,
+            f.deadline_misses
+        );
+        assert_eq!((f.deadline_misses_warmup, f.miss_warmup_s), (2, 1.0));
         assert_eq!(f.misses[1].kind, "host");
         assert_eq!(f.misses[1].cpu_us, None);
+        assert_eq!(f.misses[0].minor_faults, Some(240));
+        // A miss written before faults were counted reads as unknown.
+        assert_eq!(f.misses[1].minor_faults, None);
         assert_eq!(
             f.misses[0].line("ingest"),
             "ingest miss at t=12.345 678 s (mono 8312.104233 s): 115.8 µs wall, \
-             116.4 µs CPU, 0 switches (overrun)\n"
+             116.4 µs CPU, 0 switches, 240 faults (overrun)\n"
         );
         assert_eq!(
             f.misses[1].line("ingest"),
             "ingest miss at t=20.000 001 s (mono 8319.758556 s): 4331.0 µs wall, \
-             CPU time unknown, switches unknown (host)\n"
+             CPU time unknown, switches unknown, faults unknown (host)\n"
         );
     }
 }

@@ -31,14 +31,23 @@
 //! Which misses, when: the most recent misses are kept in a fixed ring
 //! ([`MissLog`], [`Budget::miss_log`]) with their start time on the
 //! stage's clock, wall and thread CPU time, context switches and kind;
-//! older ones are counted, never silently lost. Only a miss reads the
-//! thread's clocks: the on-time path stays a histogram record and a
-//! compare.
+//! older ones are counted, never silently lost. Each also carries the
+//! thread's page faults (minor and major) over the message: the start mark
+//! already makes the `getrusage` call that counts the switches, and the
+//! same call returns the faults, so they cost nothing more there. Only a
+//! miss reads the thread's clocks at the end: the on-time path stays a
+//! histogram record and a compare.
+//!
+//! Warm-up apart from steady state: a miss whose work started within the
+//! first `warmup_ns` after the stage's first recorded message
+//! ([`Budget::with_warmup`]) is also counted as a *warm-up* miss
+//! ([`Budget::warmup_misses`]). That splits the total, it never hides a
+//! miss: [`Budget::misses`] counts every one.
 
-use super::clock::{thread_cpu_ns, thread_switches};
+use super::clock::{thread_cpu_ns, thread_usage, ThreadUsage};
 use super::hist::LatencyHist;
 pub use super::miss_log::MissKind;
-use super::miss_log::{Miss, MissLog};
+use super::miss_log::{Faults, Miss, MissLog};
 
 /// Compute-time accounting against a budget.
 #[derive(Clone, Debug)]
@@ -49,60 +58,78 @@ pub struct Budget {
     host: u64,
     /// Thread CPU time at the last [`Budget::start`] (0: never marked).
     cpu_start_ns: u64,
-    /// The thread's context switches at the last [`Budget::start`].
-    switches_start: u64,
+    /// The thread's switches and faults at the last [`Budget::start`].
+    usage_start: ThreadUsage,
     compute: LatencyHist,
     response: LatencyHist,
     late: u64,
     /// The most recent misses.
     log: MissLog,
+    /// Length of the warm-up (ns from the first recorded message).
+    warmup_ns: u64,
+    /// Start of the first recorded message (`u64::MAX`: none yet).
+    first_ns: u64,
+    /// Misses that started in the warm-up.
+    warmup_misses: u64,
 }
 
 impl Budget {
     /// A budget of `budget_ns` per message (0: no budget, nothing misses).
     pub fn new(budget_ns: u64) -> Self {
+        Self::with_warmup(budget_ns, 0)
+    }
+
+    /// A budget of `budget_ns` per message whose misses in the first
+    /// `warmup_ns` after the first recorded message also count as warm-up
+    /// misses.
+    pub fn with_warmup(budget_ns: u64, warmup_ns: u64) -> Self {
         Self {
             budget_ns,
             misses: 0,
             preempted: 0,
             host: 0,
             cpu_start_ns: 0,
-            switches_start: 0,
+            usage_start: ThreadUsage::UNKNOWN,
             compute: LatencyHist::new(),
             response: LatencyHist::new(),
             late: 0,
             log: MissLog::new(),
+            warmup_ns,
+            first_ns: u64::MAX,
+            warmup_misses: 0,
         }
     }
 
     /// Mark the start of a message's work for the preempted/overrun and
-    /// host split (a thread-CPU clock read and a context-switch count).
+    /// host split and the miss log's faults (a thread-CPU clock read and
+    /// one `getrusage`).
     pub fn start(&mut self) {
-        self.start_at(thread_cpu_ns(), thread_switches());
+        self.start_at(thread_cpu_ns(), thread_usage());
     }
 
-    /// [`Budget::start`] with the thread's CPU clock and switch count given.
-    fn start_at(&mut self, cpu_ns: u64, switches: u64) {
+    /// [`Budget::start`] with the thread's CPU clock and usage given.
+    fn start_at(&mut self, cpu_ns: u64, usage: ThreadUsage) {
         self.cpu_start_ns = cpu_ns;
-        self.switches_start = switches;
+        self.usage_start = usage;
     }
 
     /// Record one message that started at `start_ns` and finished at
     /// `end_ns` (both on the stage's clock); returns true if it missed the
     /// budget.
     pub fn record(&mut self, start_ns: u64, end_ns: u64) -> bool {
-        self.record_probed(start_ns, end_ns, || (thread_cpu_ns(), thread_switches()))
+        self.record_probed(start_ns, end_ns, || (thread_cpu_ns(), thread_usage()))
     }
 
     /// [`Budget::record`] with `now` giving the thread's CPU clock and
-    /// context-switch count at the end (read only for a miss).
+    /// usage at the end (read only for a miss).
     fn record_probed(
         &mut self,
         start_ns: u64,
         end_ns: u64,
-        now: impl FnOnce() -> (u64, u64),
+        now: impl FnOnce() -> (u64, ThreadUsage),
     ) -> bool {
         let dt = end_ns.saturating_sub(start_ns);
+        self.first_ns = self.first_ns.min(start_ns);
         self.compute.record(dt);
         let miss = self.budget_ns > 0 && dt > self.budget_ns;
         if miss {
@@ -114,18 +141,31 @@ impl Budget {
     /// Classify, count and log a miss of wall time `wall_ns` that started
     /// at `start_ns`.
     #[cold]
-    fn count_miss(&mut self, start_ns: u64, wall_ns: u64, now: impl FnOnce() -> (u64, u64)) {
+    fn count_miss(
+        &mut self,
+        start_ns: u64,
+        wall_ns: u64,
+        now: impl FnOnce() -> (u64, ThreadUsage),
+    ) {
         self.misses += 1;
-        let (kind, cpu_ns, switches) = if self.cpu_start_ns > 0 {
-            let (cpu_now, sw_now) = now();
+        if start_ns < self.first_ns.saturating_add(self.warmup_ns) {
+            self.warmup_misses += 1;
+        }
+        let (kind, cpu_ns, switches, faults) = if self.cpu_start_ns > 0 {
+            let (cpu_now, u) = now();
+            let u0 = self.usage_start;
             let cpu = cpu_now.saturating_sub(self.cpu_start_ns);
-            let kind = classify(self.budget_ns, cpu, self.switches_start, sw_now);
-            let known = self.switches_start != u64::MAX && sw_now != u64::MAX;
-            let switches = known.then(|| sw_now.saturating_sub(self.switches_start));
-            (kind, Some(cpu), switches)
+            let kind = classify(self.budget_ns, cpu, u0.switches, u.switches);
+            let known = u0 != ThreadUsage::UNKNOWN && u != ThreadUsage::UNKNOWN;
+            let switches = known.then(|| u.switches.saturating_sub(u0.switches));
+            let faults = known.then(|| Faults {
+                minor: u.minor_faults.saturating_sub(u0.minor_faults),
+                major: u.major_faults.saturating_sub(u0.major_faults),
+            });
+            (kind, Some(cpu), switches, faults)
         } else {
             // No mark: nothing says the time was taken from the stage.
-            (MissKind::Overrun, None, None)
+            (MissKind::Overrun, None, None, None)
         };
         match kind {
             MissKind::Overrun => {}
@@ -140,6 +180,7 @@ impl Budget {
             wall_ns,
             cpu_ns,
             switches,
+            faults,
             kind,
         });
     }
@@ -177,6 +218,18 @@ impl Budget {
     /// Messages over budget so far.
     pub fn misses(&self) -> u64 {
         self.misses
+    }
+
+    /// Of [`Budget::misses`], those whose work started in the warm-up (the
+    /// first `warmup_ns` after the first recorded message); the rest,
+    /// `misses − warmup_misses`, are the steady state's.
+    pub fn warmup_misses(&self) -> u64 {
+        self.warmup_misses
+    }
+
+    /// The warm-up's length in ns ([`Budget::with_warmup`]).
+    pub fn warmup_ns(&self) -> u64 {
+        self.warmup_ns
     }
 
     /// Of [`Budget::misses`], those whose own CPU time stayed within the
@@ -222,207 +275,5 @@ pub fn classify(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn counts_misses_strictly_above_budget() {
-        let mut b = Budget::new(100);
-        assert!(!b.record(1_000, 1_050));
-        assert!(!b.record(1_000, 1_100));
-        assert!(b.record(1_000, 1_101));
-        assert_eq!(b.misses(), 1);
-        assert_eq!(b.compute().count(), 3);
-        let mut none = Budget::new(0);
-        assert!(!none.record(0, 1_000_000_000));
-    }
-
-    #[test]
-    fn lateness_counts_queueing_and_compute_against_the_budget() {
-        let mut b = Budget::new(100);
-        // Released at 1000, waited 30, computed 60: response 90, on time.
-        assert!(!b.record_released(1_000, 1_030, 1_090));
-        // Waited 50, computed 60: compute within budget, but late by 10.
-        assert!(!b.record_released(1_000, 1_050, 1_110));
-        // Unknown release: compute only.
-        b.record_released(0, 1_000, 1_500);
-        assert_eq!(b.misses(), 1);
-        assert_eq!(b.late(), 1);
-        assert_eq!(b.compute().count(), 3);
-        assert_eq!(b.response().count(), 2);
-        assert_eq!(b.response().max(), 110);
-    }
-
-    /// Work on the CPU for about `ns` (the thread's own clock).
-    fn burn(ns: u64) {
-        let t0 = thread_cpu_ns();
-        let mut x = 1u64;
-        while thread_cpu_ns() - t0 < ns {
-            x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
-        }
-    }
-
-    #[test]
-    fn a_miss_spent_off_the_cpu_is_preempted_and_one_spent_computing_is_an_overrun() {
-        let budget = 2_000_000; // 2 ms
-        let mut b = Budget::new(budget);
-        // Descheduled for 3× the budget (a sleep is what a preemption looks
-        // like to the thread): a miss, but not the stage's own work.
-        b.start();
-        let t0 = crate::clock::now_ns();
-        std::thread::sleep(std::time::Duration::from_nanos(3 * budget));
-        let t1 = crate::clock::now_ns();
-        assert!(b.record(t0, t1));
-        assert_eq!((b.misses(), b.preempted()), (1, 1));
-        // The sleep switched the thread out: this machine, not the host.
-        assert_eq!(b.host(), 0);
-        let m = *b.miss_log().iter().next().unwrap();
-        assert_eq!(
-            (m.start_ns, m.wall_ns, m.kind),
-            (t0, t1 - t0, MissKind::Preempted)
-        );
-        assert!(
-            m.cpu_ns.unwrap() <= budget && m.switches.unwrap() >= 1,
-            "{m:?}"
-        );
-        // Computing for 3× the budget: an own overrun.
-        b.start();
-        let t0 = crate::clock::now_ns();
-        burn(3 * budget);
-        assert!(b.record(t0, crate::clock::now_ns()));
-        assert_eq!((b.misses(), b.preempted()), (2, 1));
-        // Without a start mark the CPU time runs from the last mark, so an
-        // unmarked message is never classed as preempted by mistake.
-        let t0 = crate::clock::now_ns();
-        std::thread::sleep(std::time::Duration::from_nanos(3 * budget));
-        assert!(b.record(t0, crate::clock::now_ns()));
-        assert_eq!((b.misses(), b.preempted()), (3, 1));
-        let kinds: Vec<_> = b.miss_log().iter().map(|m| m.kind).collect();
-        assert_eq!(
-            kinds,
-            [MissKind::Preempted, MissKind::Overrun, MissKind::Overrun]
-        );
-        assert!(b.miss_log().iter().nth(1).unwrap().cpu_ns.unwrap() > budget);
-    }
-
-    /// A miss by hand: thread CPU clock and switch count at the start mark
-    /// and at the end.
-    fn miss_at(
-        b: &mut Budget,
-        start_ns: u64,
-        end_ns: u64,
-        (cpu0, sw0): (u64, u64),
-        (cpu1, sw1): (u64, u64),
-    ) -> bool {
-        b.start_at(cpu0, sw0);
-        b.record_probed(start_ns, end_ns, || (cpu1, sw1))
-    }
-
-    #[test]
-    fn the_log_lists_each_miss_with_its_time_cpu_switches_and_kind() {
-        let mut b = Budget::new(100);
-        // On time: nothing listed, the clocks are not even read.
-        b.start_at(1_000, 5);
-        assert!(!b.record_probed(10_000, 10_100, || panic!("read on time")));
-        // 150 wall, 40 on the CPU, no switch: the host's.
-        assert!(miss_at(&mut b, 20_000, 20_150, (2_000, 5), (2_040, 5)));
-        // 300 wall, 50 on the CPU, 2 switches: preempted.
-        assert!(miss_at(&mut b, 30_000, 30_300, (3_000, 7), (3_050, 9)));
-        // 200 wall, 180 on the CPU: its own overrun.
-        assert!(miss_at(&mut b, 40_000, 40_200, (4_000, 9), (4_180, 9)));
-        // Switch counts unreadable: preempted, switches unknown.
-        assert!(miss_at(
-            &mut b,
-            50_000,
-            50_101,
-            (5_000, u64::MAX),
-            (5_010, u64::MAX)
-        ));
-        // A compute time at the budget is on time.
-        assert!(!miss_at(&mut b, 60_000, 60_100, (6_000, 9), (6_000, 9)));
-        let want = [
-            (20_000, 150, Some(40), Some(0), MissKind::Host),
-            (30_000, 300, Some(50), Some(2), MissKind::Preempted),
-            (40_000, 200, Some(180), Some(0), MissKind::Overrun),
-            (50_000, 101, Some(10), None, MissKind::Preempted),
-        ];
-        let got: Vec<_> = b
-            .miss_log()
-            .iter()
-            .map(|m| (m.start_ns, m.wall_ns, m.cpu_ns, m.switches, m.kind))
-            .collect();
-        assert_eq!(got, want);
-        assert_eq!((b.misses(), b.preempted(), b.host()), (4, 3, 1));
-        assert_eq!(b.miss_log().overwritten(), 0);
-        // Without any start mark the CPU time is unknown and the miss stays
-        // the stage's own.
-        let mut unmarked = Budget::new(100);
-        assert!(unmarked.record_probed(7_000, 7_500, || panic!("no mark to read against")));
-        let m = unmarked.miss_log().iter().next().copied().unwrap();
-        assert_eq!(
-            (m.cpu_ns, m.switches, m.kind),
-            (None, None, MissKind::Overrun)
-        );
-        assert_eq!((unmarked.misses(), unmarked.preempted()), (1, 0));
-    }
-
-    #[test]
-    fn every_miss_is_listed_or_counted_out_and_the_counts_match_the_kinds() {
-        use crate::miss_log::MISS_LOG_CAPACITY;
-        let mut b = Budget::new(100);
-        let n = MISS_LOG_CAPACITY as u64 + 9;
-        // Miss i: host when i % 3 == 0, preempted when 1, overrun when 2;
-        // on-time messages in between are never listed.
-        for i in 0..n {
-            let t = 1_000_000 * i;
-            assert!(!miss_at(&mut b, t, t + 50, (10, 1), (20, 1)));
-            let (cpu, sw) = match i % 3 {
-                0 => (60, 1),
-                1 => (60, 2),
-                _ => (160, 1),
-            };
-            assert!(miss_at(
-                &mut b,
-                t + 100,
-                t + 300 + i,
-                (10, 1),
-                (10 + cpu, sw)
-            ));
-        }
-        let log = b.miss_log();
-        assert_eq!(log.len(), MISS_LOG_CAPACITY);
-        assert_eq!(log.overwritten(), 9);
-        assert_eq!(b.misses(), log.len() as u64 + log.overwritten());
-        // The 9 oldest are gone; the rest in order, each its own.
-        for (m, i) in log.iter().zip(9..n) {
-            let kind = [MissKind::Host, MissKind::Preempted, MissKind::Overrun][(i % 3) as usize];
-            assert_eq!(
-                (m.start_ns, m.wall_ns, m.kind),
-                (1_000_000 * i + 100, 200 + i, kind)
-            );
-        }
-        // The counters span every miss: 14 of 0..41 are ≡ 0 (mod 3), 14 ≡ 1.
-        assert_eq!((b.host(), b.preempted()), (14, 28));
-    }
-
-    #[test]
-    fn kinds_round_trip_their_wire_ids() {
-        for k in MissKind::ALL {
-            assert_eq!(MissKind::from_id(k as u32), Some(k));
-        }
-        assert_eq!(MissKind::from_id(0), None);
-        assert_eq!(MissKind::Host.name(), "host");
-    }
-
-    #[test]
-    fn time_lost_without_a_context_switch_is_the_hosts() {
-        let b = 1_000;
-        assert_eq!(classify(b, 1_001, 5, 5), MissKind::Overrun);
-        assert_eq!(classify(b, 1_001, 5, 7), MissKind::Overrun);
-        assert_eq!(classify(b, 400, 5, 6), MissKind::Preempted);
-        assert_eq!(classify(b, 400, 5, 5), MissKind::Host);
-        assert_eq!(classify(b, 1_000, 9, 9), MissKind::Host);
-        // An unreadable count is never the host's.
-        assert_eq!(classify(b, 400, u64::MAX, u64::MAX), MissKind::Preempted);
-    }
-}
+#[path = "budget_tests.rs"]
+mod tests;

@@ -28,6 +28,9 @@ pub struct Miss {
     /// The thread's context switches (voluntary + involuntary) over the
     /// message; `None` without a start mark or when unreadable.
     pub switches: Option<u64>,
+    /// The thread's page faults over the message (same marks as
+    /// `switches`); `None` without a start mark or when unreadable.
+    pub faults: Option<Faults>,
     /// Whose miss it was (the rule of `crate::budget`).
     pub kind: MissKind,
 }
@@ -38,8 +41,29 @@ const EMPTY: Miss = Miss {
     wall_ns: 0,
     cpu_ns: None,
     switches: None,
+    faults: None,
     kind: MissKind::Overrun,
 };
+
+/// Page faults of a thread over a stretch of time (`getrusage`'s
+/// `ru_minflt`, `ru_majflt`): a fault stops the thread while the kernel
+/// maps the page (µs for a minor one, a disk read for a major one), so a
+/// miss with many of them spent its time making memory present, not
+/// computing or waiting for the core.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Faults {
+    /// Pages mapped without I/O (first touch, page cache, copy-on-write).
+    pub minor: u64,
+    /// Pages read from disk.
+    pub major: u64,
+}
+
+impl Faults {
+    /// Minor + major.
+    pub fn total(&self) -> u64 {
+        self.minor + self.major
+    }
+}
 
 /// Ring of the most recent [`Miss`]es.
 #[derive(Clone, Debug)]
@@ -149,6 +173,10 @@ mod tests {
             wall_ns: 200 + i,
             cpu_ns: Some(i),
             switches: Some(i % 3),
+            faults: Some(Faults {
+                minor: 10 * i,
+                major: i % 2,
+            }),
             kind: [MissKind::Overrun, MissKind::Preempted, MissKind::Host][(i % 3) as usize],
         }
     }

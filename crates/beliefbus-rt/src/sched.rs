@@ -190,6 +190,23 @@ pub fn set_fifo(prio: u8) -> Result<(), String> {
     }
 }
 
+/// Leave SCHED_FIFO/SCHED_RR for SCHED_OTHER (the nice value stays) if
+/// the calling thread runs under one of them; true if it did. A stage
+/// calls it once its loop is over: tearing down its ports and exiting
+/// (unmapping locked memory) then no longer preempts the stages of lower
+/// real-time priority on its core that are still finishing their last
+/// messages.
+pub fn leave_real_time() -> bool {
+    // SAFETY: sched_getscheduler on ourselves has no preconditions.
+    let policy = unsafe { libc::sched_getscheduler(0) };
+    if policy != libc::SCHED_FIFO && policy != libc::SCHED_RR {
+        return false;
+    }
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: sched_setscheduler on ourselves with a valid param.
+    unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &param) == 0 }
+}
+
 /// Set the nice value of the calling process.
 pub fn set_nice(nice: i32) -> Result<(), String> {
     // SAFETY: setpriority on ourselves.
@@ -385,6 +402,27 @@ mod tests {
             assert_eq!(a.core, None);
             assert_eq!(a.warnings.len(), 1);
             assert!(a.warnings[0].contains("unpinned"));
+        })
+        .join()
+        .unwrap();
+    }
+
+    #[test]
+    fn leaving_real_time_returns_a_fifo_thread_to_sched_other() {
+        // On a thread of its own: the policy is per thread.
+        std::thread::spawn(|| {
+            // SAFETY: sched_getscheduler on ourselves.
+            let policy = || unsafe { libc::sched_getscheduler(0) };
+            // Not real-time: nothing to leave.
+            assert_eq!(policy(), libc::SCHED_OTHER);
+            assert!(!leave_real_time());
+            // Real-time where permitted (root, or an rtprio limit).
+            if set_fifo(1).is_ok() {
+                assert_eq!(policy(), libc::SCHED_FIFO);
+                assert!(leave_real_time());
+                assert_eq!(policy(), libc::SCHED_OTHER);
+                assert!(!leave_real_time());
+            }
         })
         .join()
         .unwrap();

@@ -199,7 +199,7 @@ impl JitterReport {
         for p in &self.paths {
             s += &fmt_row(p);
         }
-        s += "(timer rows: jit = |period − T|, lat = wake-up latency, misses = late by a period; pipeline rows: lat = end-to-end (sensor->ingest for sensor), misses = above the budget, preempted = of those, the ones whose own CPU time stayed within it, host = of those, the ones never switched out (interrupts or the hypervisor took the time); r = jitter ratio to the timer)\n";
+        s += "(timer rows: jit = |period − T|, lat = wake-up latency, misses = late by a period; pipeline rows: lat = end-to-end (sensor->ingest for sensor), misses = above the budget, warm-up/after = of those, the ones that started in the stage's first run.warmup_s after its first message and the rest, preempted = of those, the ones whose own CPU time stayed within it, host = of those, the ones never switched out (interrupts or the hypervisor took the time); r = jitter ratio to the timer)\n";
         if !self.baseline_host.is_empty() {
             s += &format!(
                 "host time taken during the timer baseline: {}\n",
@@ -222,7 +222,7 @@ impl JitterReport {
                     .collect();
                 why.push(format!("stale while idle {}", f.dropped_stale_idle));
                 s += &format!(
-                    "  {:<8} processed {:>8}  dropped {:>5} ({})  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5} (preempted {:>5}, host {:>5})  late {:>5}  lateness p99 {:>8}\n",
+                    "  {:<8} processed {:>8}  dropped {:>5} ({})  compute p50 {:>8} p99 {:>8}  budget {:>8}  misses {:>5} (warm-up {:>3}, after {:>5}; preempted {:>5}, host {:>5})  late {:>5}  lateness p99 {:>8}\n",
                     name,
                     f.processed,
                     f.dropped,
@@ -231,6 +231,8 @@ impl JitterReport {
                     o(f.compute_p99_us),
                     o(f.budget_us),
                     f.deadline_misses,
+                    f.deadline_misses_warmup,
+                    f.deadline_misses_after_warmup,
                     f.deadline_misses_preempted,
                     f.deadline_misses_host,
                     f.late,
@@ -262,8 +264,10 @@ impl JitterReport {
                     crate::rt::host::describe(&cores)
                 );
             }
+            let warm: u64 = p.stages.values().map(|f| f.deadline_misses_warmup).sum();
             s += &format!(
-                "deadline misses, all stages: {total}; taken by the host {host}; the pipeline's own {}\n",
+                "deadline misses, all stages: {total} (in the warm-up {warm}, after it {}); taken by the host {host}; the pipeline's own {}\n",
+                total - warm,
                 total - host
             );
         }

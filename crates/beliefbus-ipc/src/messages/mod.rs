@@ -16,7 +16,7 @@
 //! | `belief`  | [`Belief`]       | `beliefbus.Belief.v1`         |
 //! | `control` | [`Control`]      | `beliefbus.Control.v1`        |
 //! | `truth`   | [`Truth`]        | `beliefbus.Truth.v1`          |
-//! | `stats`   | [`StageStats`]   | `beliefbus.StageStats.v5`     |
+//! | `stats`   | [`StageStats`]   | `beliefbus.StageStats.v6`     |
 
 use crate::belief::Gaussian;
 use crate::{MAX_CONTROL, MAX_OBS, MAX_STATE};

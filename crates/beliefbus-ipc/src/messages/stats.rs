@@ -68,6 +68,10 @@ pub struct MissStats {
     /// `crate::rt::budget::MissKind` id (0: slot unused).
     pub kind: u32,
     pub reserved: u32,
+    /// The thread's minor and major page faults over it ([`MISS_UNKNOWN`]
+    /// both: not measured).
+    pub minor_faults: u64,
+    pub major_faults: u64,
 }
 
 /// [`MissStats`]' value of a figure that was not measured.
@@ -82,6 +86,8 @@ impl From<&crate::rt::miss_log::Miss> for MissStats {
             switches: m.switches.unwrap_or(MISS_UNKNOWN),
             kind: m.kind as u32,
             reserved: 0,
+            minor_faults: m.faults.map_or(MISS_UNKNOWN, |f| f.minor),
+            major_faults: m.faults.map_or(MISS_UNKNOWN, |f| f.major),
         }
     }
 }
@@ -95,6 +101,9 @@ impl MissStats {
             wall_ns: self.wall_ns,
             cpu_ns: known(self.cpu_ns),
             switches: known(self.switches),
+            faults: known(self.minor_faults)
+                .zip(known(self.major_faults))
+                .map(|(minor, major)| crate::rt::miss_log::Faults { minor, major }),
             kind: crate::rt::budget::MissKind::from_id(self.kind)?,
         })
     }
@@ -166,7 +175,7 @@ pub mod stats_flags {
 
 /// Periodic (and final) statistics of a stage (stage → launcher).
 #[derive(Clone, Copy, Debug, PartialEq, ZeroCopySend)]
-#[type_name("beliefbus.StageStats.v5")]
+#[type_name("beliefbus.StageStats.v6")]
 #[repr(C)]
 pub struct StageStats {
     /// seq: report number; t_valid = t_pub: when the report was made.
@@ -281,6 +290,12 @@ pub struct StageStats {
     /// Misses no longer in `miss_log` (pushed out by newer ones):
     /// `deadline_misses` = listed + this.
     pub miss_log_overwritten: u64,
+    /// Of `deadline_misses`, those that started in the warm-up: the first
+    /// `miss_warmup_ns` after the stage's first message
+    /// (`beliefbus_rt::budget::Budget::warmup_misses`); the rest are the
+    /// steady state's.
+    pub deadline_misses_warmup: u64,
+    pub miss_warmup_ns: u64,
 }
 
 impl Default for StageStats {
@@ -334,6 +349,8 @@ impl Default for StageStats {
             chain_recentred: 0,
             miss_log: [MissStats::default(); STATS_MISSES],
             miss_log_overwritten: 0,
+            deadline_misses_warmup: 0,
+            miss_warmup_ns: 0,
         }
     }
 }

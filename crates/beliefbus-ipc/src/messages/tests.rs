@@ -121,24 +121,30 @@ fn ids_round_trip() {
     assert_eq!(Hop::from_id(0), None);
 }
 
-// A miss slot is five 8-byte words: no padding a C reader could misplace.
+// A miss slot is seven 8-byte words: no padding a C reader could misplace.
 const _: () = {
-    assert!(size_of::<MissStats>() == 40);
+    assert!(size_of::<MissStats>() == 56);
     assert!(align_of::<MissStats>() == 8);
     assert!(offset_of!(MissStats, start_ns) == 0);
     assert!(offset_of!(MissStats, cpu_ns) == 16);
     assert!(offset_of!(MissStats, kind) == 32);
+    assert!(offset_of!(MissStats, minor_faults) == 40);
+    assert!(offset_of!(MissStats, major_faults) == 48);
 };
 
 #[test]
 fn a_miss_log_round_trips_through_the_stats_message() {
     use crate::rt::budget::MissKind;
-    use crate::rt::miss_log::Miss;
+    use crate::rt::miss_log::{Faults, Miss};
     let a = Miss {
         start_ns: 12_345_678_901,
         wall_ns: 115_800,
         cpu_ns: Some(116_400),
         switches: Some(0),
+        faults: Some(Faults {
+            minor: 240,
+            major: 1,
+        }),
         kind: MissKind::Overrun,
     };
     let b = Miss {
@@ -146,6 +152,7 @@ fn a_miss_log_round_trips_through_the_stats_message() {
         wall_ns: 4_331_000,
         cpu_ns: None,
         switches: None,
+        faults: None,
         kind: MissKind::Host,
     };
     let mut s = StageStats::default();
@@ -154,6 +161,14 @@ fn a_miss_log_round_trips_through_the_stats_message() {
     s.miss_log[1] = MissStats::from(&b);
     assert_eq!(s.miss_log[1].cpu_ns, MISS_UNKNOWN);
     assert_eq!(s.miss_log[0].kind, 1);
+    assert_eq!(
+        (s.miss_log[0].minor_faults, s.miss_log[0].major_faults),
+        (240, 1)
+    );
+    assert_eq!(
+        (s.miss_log[1].minor_faults, s.miss_log[1].major_faults),
+        (MISS_UNKNOWN, MISS_UNKNOWN)
+    );
     assert_eq!(s.misses().collect::<Vec<_>>(), [a, b]);
     // An unknown kind id ends the list rather than inventing a miss.
     s.miss_log[1].kind = 9;

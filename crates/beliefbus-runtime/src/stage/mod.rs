@@ -234,7 +234,8 @@ impl Metrics {
             dropped: 0,
             dropped_by_reason: [0; STATS_DROP_REASONS],
             rejected_by_reason: [0; STATS_REASONS],
-            budget: Budget::new(budget_ns),
+            // The misses of the first `warmup_ns` are also counted apart.
+            budget: Budget::with_warmup(budget_ns, warmup_ns),
             hops: hops.iter().map(|&h| (h, LatencyHist::new())).collect(),
             warmup_ns,
             first_meas_ns: None,
@@ -312,6 +313,8 @@ impl Metrics {
             deadline_misses: self.budget.misses(),
             deadline_misses_preempted: self.budget.preempted(),
             deadline_misses_host: self.budget.host(),
+            deadline_misses_warmup: self.budget.warmup_misses(),
+            miss_warmup_ns: self.budget.warmup_ns(),
             dropped_stale_idle: self.stale_while_idle,
             budget_ns: self.budget.budget_ns(),
             compute: Percentiles::from(self.budget.compute()),
@@ -406,7 +409,8 @@ impl StatsPort {
     }
 
     /// Publish now; `last` marks the final report. The first report says
-    /// the stage is set up: its memory is locked then, if asked for.
+    /// the stage is set up: its memory is locked then, if asked for. After
+    /// the final one the calling thread leaves real-time scheduling.
     pub fn publish(
         &mut self,
         m: &Metrics,
@@ -432,6 +436,15 @@ impl StatsPort {
         self.seq += 1;
         self.next_ns = now_ns + self.period_ns;
         self.publisher.publish(&s)?;
+        if last {
+            // Only teardown follows: closing the ports and the process's
+            // exit (unmapping its locked memory, ms of kernel work) must
+            // not preempt the lower-priority stages on this core that are
+            // still finishing their last messages (the plant stops first:
+            // at FIFO 80 its exit delayed control's last message by
+            // ~0.8 ms).
+            crate::rt::sched::leave_real_time();
+        }
         Ok(s)
     }
 

@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 pub(super) const KILL_REAP_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// Number of counters carried over from earlier incarnations.
-const CARRIED: usize = 11;
+const CARRIED: usize = 12;
 
 /// One stage of the run: its current process and its history.
 pub(super) struct Stage {
@@ -175,6 +175,7 @@ impl Stage {
         st.deadline_misses_preempted += e[8];
         st.deadline_misses_host += e[9];
         st.dropped_stale_idle += e[10];
+        st.deadline_misses_warmup += e[11];
         for (d, x) in st.dropped_by_reason.iter_mut().zip(self.earlier_drops) {
             *d += x;
         }
@@ -231,6 +232,7 @@ fn counters(st: &StageStats) -> [u64; CARRIED] {
         st.deadline_misses_preempted,
         st.deadline_misses_host,
         st.dropped_stale_idle,
+        st.deadline_misses_warmup,
     ]
 }
 

@@ -113,6 +113,16 @@ pub struct StageReport {
     /// a default: reports written before it parse.
     #[serde(default)]
     pub deadline_misses_host: u64,
+    /// Of the misses, those that started in the warm-up (the first
+    /// `miss_warmup_s` after the stage's first message, each incarnation),
+    /// and the rest: `deadline_misses` = warm-up + after. Added with a
+    /// default: reports written before it parse.
+    #[serde(default)]
+    pub deadline_misses_warmup: u64,
+    #[serde(default)]
+    pub deadline_misses_after_warmup: u64,
+    #[serde(default)]
+    pub miss_warmup_s: f64,
     pub compute_p50_us: Option<f64>,
     pub compute_p99_us: Option<f64>,
     pub budget_us: f64,
@@ -158,13 +168,20 @@ pub struct MissReport {
     pub cpu_us: Option<f64>,
     /// The thread's context switches over it (null: not measured).
     pub switches: Option<u64>,
+    /// The thread's minor and major page faults over it (same marks as
+    /// `switches`; null: not measured). Added with a default: reports
+    /// written before them parse.
+    #[serde(default)]
+    pub minor_faults: Option<u64>,
+    #[serde(default)]
+    pub major_faults: Option<u64>,
     /// `overrun`, `preempted` or `host` (the rule of `deadline_misses_*`).
     pub kind: String,
 }
 
 impl MissReport {
     /// `ingest miss at t=12.345 678 s (mono 8312.104233 s): 115.8 µs wall,
-    /// 116.4 µs CPU, 0 switches (overrun)`: `t` after the run's start,
+    /// 116.4 µs CPU, 0 switches, 0 faults (overrun)`: `t` after the run's start,
     /// `mono` the CLOCK_MONOTONIC time as an `ftrace` or `perf` trace
     /// prints it (one line, newline included).
     pub fn line(&self, stage: &str) -> String {
@@ -180,8 +197,14 @@ impl MissReport {
             Some(n) => format!("{n} switches"),
             None => "switches unknown".to_string(),
         };
+        let faults = match (self.minor_faults, self.major_faults) {
+            (Some(1), Some(0)) => "1 fault".to_string(),
+            (Some(minor), Some(0)) => format!("{minor} faults"),
+            (Some(minor), Some(major)) => format!("{} faults ({major} major)", minor + major),
+            _ => "faults unknown".to_string(),
+        };
         format!(
-            "{stage} miss at t={sign}{s}.{:03} {:03} s (mono {}.{:06} s): {:.1} µs wall, {cpu}, {switches} ({})\n",
+            "{stage} miss at t={sign}{s}.{:03} {:03} s (mono {}.{:06} s): {:.1} µs wall, {cpu}, {switches}, {faults} ({})\n",
             frac / 1_000,
             frac % 1_000,
             self.t_ns / 1_000_000_000,
@@ -363,6 +386,8 @@ pub(super) fn miss_report(m: &crate::rt::miss_log::Miss, run_start_ns: u64) -> M
         wall_us: us(m.wall_ns),
         cpu_us: m.cpu_ns.map(us),
         switches: m.switches,
+        minor_faults: m.faults.map(|f| f.minor),
+        major_faults: m.faults.map(|f| f.major),
         kind: m.kind.name().to_string(),
     }
 }
@@ -392,6 +417,9 @@ fn stage_report(kind: StageKind, end: &super::StageEnd, run_start_ns: u64) -> St
         deadline_misses: s.deadline_misses,
         deadline_misses_preempted: s.deadline_misses_preempted,
         deadline_misses_host: s.deadline_misses_host,
+        deadline_misses_warmup: s.deadline_misses_warmup,
+        deadline_misses_after_warmup: s.deadline_misses - s.deadline_misses_warmup,
+        miss_warmup_s: s.miss_warmup_ns as f64 / 1e9,
         compute_p50_us: (c.count > 0).then(|| us(c.p50_ns)),
         compute_p99_us: (c.count > 0).then(|| us(c.p99_ns)),
         budget_us: us(s.budget_ns),

@@ -10,9 +10,11 @@
 //!   stages: { ingest | filter | control | refine | plant:
 //!             {pid, core, processed, dropped, rejected, rejected_by_reason,
 //!              deadline_misses, deadline_misses_preempted, deadline_misses_host,
+//!              deadline_misses_warmup, deadline_misses_after_warmup, miss_warmup_s,
 //!              compute_p50_us, compute_p99_us, budget_us,
 //!              fifo, mlocked, final_report, exit_status,
-//!              misses: [{t_us, t_ns, wall_us, cpu_us, switches, kind}], misses_not_listed,
+//!              misses: [{t_us, t_ns, wall_us, cpu_us, switches, minor_faults,
+//!                        major_faults, kind}], misses_not_listed,
 //!              restarts, heartbeat_misses, chaos_kills, deaths} },
 //!   accuracy: {rmse_position, rmse_state, rmse_position_raw, beliefs, samples},
 //!   control:  {waypoints_reached, mean_distance_to_waypoint, controls_received,

@@ -44,10 +44,12 @@ impl ReportInput {
     /// `preempt`: the misses during which the stage's own CPU time stayed
     /// within its budget (time taken from it, not an overrun); `host`: of
     /// those, the ones during which it was never switched out (interrupts
-    /// or the hypervisor took the time).
+    /// or the hypervisor took the time); `warm`/`after`: the misses that
+    /// started in the stage's warm-up and after it (they add up to
+    /// `misses`).
     fn stage_table(&self) -> String {
         let mut out = format!(
-            "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>7} {:>5} {:>10} {:>10} {:>9} {:>6} {:>11}\n",
+            "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>5} {:>5} {:>7} {:>5} {:>10} {:>10} {:>9} {:>6} {:>11}\n",
             "stage",
             "pid",
             "core",
@@ -55,6 +57,8 @@ impl ReportInput {
             "dropped",
             "rejected",
             "misses",
+            "warm",
+            "after",
             "preempt",
             "host",
             "cpu p50µs",
@@ -66,7 +70,7 @@ impl ReportInput {
         for (kind, end) in &self.stages {
             let s = end.stats.unwrap_or_default();
             out.push_str(&format!(
-                "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>7} {:>5} {:>10.1} {:>10.1} {:>9.0} {:>6} {:>11}\n",
+                "{:<8} {:>7} {:>4} {:>9} {:>7} {:>8} {:>6} {:>5} {:>5} {:>7} {:>5} {:>10.1} {:>10.1} {:>9.0} {:>6} {:>11}\n",
                 kind.name(),
                 end.pid.map(|p| p.to_string()).unwrap_or("-".into()),
                 if s.core >= 0 {
@@ -78,6 +82,8 @@ impl ReportInput {
                 s.dropped,
                 s.rejected,
                 s.deadline_misses,
+                s.deadline_misses_warmup,
+                s.deadline_misses - s.deadline_misses_warmup,
                 s.deadline_misses_preempted,
                 s.deadline_misses_host,
                 us(s.compute.p50_ns),
@@ -101,6 +107,18 @@ impl ReportInput {
     /// longer listed, if any.
     fn miss_lines(&self) -> String {
         let mut out = String::new();
+        let warmup_s = self
+            .stages
+            .iter()
+            .filter_map(|(_, e)| e.stats.as_ref())
+            .find(|s| s.deadline_misses > 0)
+            .map(|s| s.miss_warmup_ns as f64 / 1e9);
+        if let Some(w) = warmup_s {
+            out.push_str(&format!(
+                "warm: misses that started in the first {w:.1} s after the stage's first \
+                 message (run.warmup_s); after: the rest; misses = warm + after\n"
+            ));
+        }
         for (kind, end) in &self.stages {
             let Some(s) = end.stats.as_ref() else {
                 continue;

@@ -97,6 +97,9 @@ fn json_has_every_documented_key() {
             "deadline_misses",
             "deadline_misses_preempted",
             "deadline_misses_host",
+            "deadline_misses_warmup",
+            "deadline_misses_after_warmup",
+            "miss_warmup_s",
             "dropped_stale_idle",
             "compute_p50_us",
             "compute_p99_us",
@@ -369,21 +372,35 @@ fn input_with_misses() -> ReportInput {
         .unwrap();
     let ctl = end.stats.as_mut().unwrap();
     ctl.deadline_misses = 44;
+    // 39 of them in the first 1.5 s of the stage, 5 after.
+    ctl.deadline_misses_warmup = 39;
+    ctl.miss_warmup_ns = 1_500_000_000;
     ctl.miss_log_overwritten = 41;
-    let slot = |start_ns, wall_ns, cpu_ns, switches, kind| MissStats {
-        start_ns,
-        wall_ns,
-        cpu_ns,
-        switches,
-        kind,
-        reserved: 0,
-    };
-    // 12.345 678 901 s after the start: an overrun, no switch.
-    ctl.miss_log[0] = slot(17_345_678_901, 115_800, 116_400, 0, 1);
-    // Preempted, one switch; host, CPU time and switches unknown.
-    ctl.miss_log[1] = slot(17_400_000_000, 1_087_000, 544_000, 1, 2);
+    let slot =
+        |start_ns, wall_ns, cpu_ns, switches, kind, (minor_faults, major_faults)| MissStats {
+            start_ns,
+            wall_ns,
+            cpu_ns,
+            switches,
+            kind,
+            reserved: 0,
+            minor_faults,
+            major_faults,
+        };
+    // 12.345 678 901 s after the start: an overrun, no switch, 1 fault.
+    ctl.miss_log[0] = slot(17_345_678_901, 115_800, 116_400, 0, 1, (1, 0));
+    // Preempted, one switch, 240 minor and 3 major faults; host, CPU
+    // time, switches and faults unknown.
+    ctl.miss_log[1] = slot(17_400_000_000, 1_087_000, 544_000, 1, 2, (240, 3));
     let unknown = crate::ipc::MISS_UNKNOWN;
-    ctl.miss_log[2] = slot(20_000_002_000, 4_331_000, unknown, unknown, 3);
+    ctl.miss_log[2] = slot(
+        20_000_002_000,
+        4_331_000,
+        unknown,
+        unknown,
+        3,
+        (unknown, unknown),
+    );
     inp
 }
 
@@ -399,7 +416,8 @@ fn a_stages_misses_are_listed_with_their_times_in_json_and_text() {
     assert_eq!(
         m[0],
         json!({"t_us": 12_345_678.901, "t_ns": 17_345_678_901u64, "wall_us": 115.8,
-               "cpu_us": 116.4, "switches": 0, "kind": "overrun"})
+               "cpu_us": 116.4, "switches": 0, "minor_faults": 1, "major_faults": 0,
+               "kind": "overrun"})
     );
     assert_eq!(m[1]["t_us"], json!(12_400_000.0));
     assert_eq!(
@@ -407,10 +425,19 @@ fn a_stages_misses_are_listed_with_their_times_in_json_and_text() {
         (json!(1), json!("preempted"))
     );
     assert_eq!(
+        (m[1]["minor_faults"].clone(), m[1]["major_faults"].clone()),
+        (json!(240), json!(3))
+    );
+    assert_eq!(
         m[2],
         json!({"t_us": 15_000_002.0, "t_ns": 20_000_002_000u64, "wall_us": 4331.0,
-               "cpu_us": null, "switches": null, "kind": "host"})
+               "cpu_us": null, "switches": null, "minor_faults": null,
+               "major_faults": null, "kind": "host"})
     );
+    // Warm-up and after add up to the total.
+    assert_eq!(c["deadline_misses_warmup"], json!(39));
+    assert_eq!(c["deadline_misses_after_warmup"], json!(5));
+    assert_eq!(c["miss_warmup_s"], json!(1.5));
     // Listed + not listed = every miss; the other stages have none.
     assert_eq!(m.len() as u64 + 41, c["deadline_misses"].as_u64().unwrap());
     assert_eq!(v["stages"]["filter"]["misses"], json!([]));
@@ -423,9 +450,9 @@ fn a_stages_misses_are_listed_with_their_times_in_json_and_text() {
     let lines: Vec<&str> = text.lines().filter(|l| l.contains("control")).collect();
     let want = [
         "41 earlier control misses not listed (the list keeps the latest 32)",
-        "control miss at t=12.345 678 s (mono 17.345678 s): 115.8 µs wall, 116.4 µs CPU, 0 switches (overrun)",
-        "control miss at t=12.400 000 s (mono 17.400000 s): 1087.0 µs wall, 544.0 µs CPU, 1 switch (preempted)",
-        "control miss at t=15.000 002 s (mono 20.000002 s): 4331.0 µs wall, CPU time unknown, switches unknown (host)",
+        "control miss at t=12.345 678 s (mono 17.345678 s): 115.8 µs wall, 116.4 µs CPU, 0 switches, 1 fault (overrun)",
+        "control miss at t=12.400 000 s (mono 17.400000 s): 1087.0 µs wall, 544.0 µs CPU, 1 switch, 243 faults (3 major) (preempted)",
+        "control miss at t=15.000 002 s (mono 20.000002 s): 4331.0 µs wall, CPU time unknown, switches unknown, faults unknown (host)",
     ];
     for w in want {
         assert!(lines.contains(&w), "missing {w:?} in\n{text}");
@@ -435,6 +462,16 @@ fn a_stages_misses_are_listed_with_their_times_in_json_and_text() {
     assert!(at("stage ") < at(want[0]) && at(want[0]) < at(want[1]));
     assert!(at(want[1]) < at(want[2]) && at(want[2]) < at(want[3]));
     assert!(at(want[3]) < at("accuracy:"));
+    // The stage table shows the total, the warm-up's and the rest.
+    let row: Vec<&str> = text
+        .lines()
+        .find(|l| l.starts_with("control "))
+        .unwrap()
+        .split_whitespace()
+        .collect();
+    assert_eq!(&row[6..9], ["44", "39", "5"], "{text}");
+    assert!(text.contains("warm: misses that started in the first 1.5 s"));
     // A run without misses prints no miss line.
     assert!(!input().render().contains(" miss at "));
+    assert!(!input().render().contains("warm: "));
 }

@@ -288,6 +288,7 @@ fn counters_span_every_incarnation() {
         dropped: 2,
         rejected: 1,
         deadline_misses: 3,
+        deadline_misses_warmup: 2,
         late: 4,
         controls_received: 5,
         processed_after_warmup: 6,
@@ -300,6 +301,7 @@ fn counters_span_every_incarnation() {
     let last = StageStats {
         processed: 7,
         ess_collapses: 1,
+        deadline_misses_warmup: 1,
         compute: crate::ipc::Percentiles {
             count: 3,
             ..Default::default()
@@ -317,6 +319,8 @@ fn counters_span_every_incarnation() {
     );
     assert_eq!(t.dropped_by_reason[0], 4);
     assert_eq!(t.ess_collapses, 19);
+    // Each incarnation warms up again: 2 + 2 + 1 warm-up misses.
+    assert_eq!(t.deadline_misses_warmup, 5);
     // Histograms are the last incarnation's.
     assert_eq!(t.compute.count, 3);
 }
@@ -337,6 +341,8 @@ fn with_misses(starts: std::ops::Range<u64>, overwritten: u64) -> StageStats {
             switches: 1,
             kind: 2,
             reserved: 0,
+            minor_faults: 2 * t,
+            major_faults: 0,
         };
     }
     st
@@ -369,8 +375,8 @@ fn the_miss_log_keeps_the_latest_misses_of_every_incarnation() {
     // Every field travels with its entry.
     let m = t.misses().next().unwrap();
     assert_eq!(
-        (m.wall_ns, m.cpu_ns, m.switches),
-        (1_503, Some(1_003), Some(1))
+        (m.wall_ns, m.cpu_ns, m.switches, m.faults.map(|f| f.minor)),
+        (1_503, Some(1_003), Some(1), Some(2_006))
     );
     // A last incarnation with a full log of its own lists only its own.
     let t = s.with_earlier(with_misses(3_000..3_000 + cap, 2));
