@@ -292,29 +292,11 @@ fn a_miss_spent_faulting_pages_in_lists_its_faults() {
     // Touch 256 fresh anonymous pages inside a message that cannot meet
     // a 1 ns budget: its log entry counts at least one fault a page.
     const PAGES: usize = 256;
-    let len = PAGES * 4096;
-    // SAFETY: a private anonymous mapping, unmapped below.
-    let p = unsafe {
-        libc::mmap(
-            std::ptr::null_mut(),
-            len,
-            libc::PROT_READ | libc::PROT_WRITE,
-            libc::MAP_PRIVATE | libc::MAP_ANONYMOUS,
-            -1,
-            0,
-        )
-    };
-    assert_ne!(p, libc::MAP_FAILED);
     let mut b = Budget::new(1);
     b.start();
     let t0 = crate::clock::now_ns();
-    for i in 0..PAGES {
-        // SAFETY: inside the mapping.
-        unsafe { std::ptr::write_volatile((p as *mut u8).add(i * 4096), 1) };
-    }
+    crate::clock::touch_fresh_pages(PAGES);
     assert!(b.record(t0, crate::clock::now_ns()));
-    // SAFETY: the mapping made above.
-    unsafe { libc::munmap(p, len) };
     let f = b.miss_log().iter().next().unwrap().faults.unwrap();
     assert!(f.minor >= PAGES as u64, "{f:?}");
     assert_eq!(f.major, 0);

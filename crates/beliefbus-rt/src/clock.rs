@@ -151,6 +151,33 @@ pub fn thread_switches() -> u64 {
     thread_usage().switches
 }
 
+/// Map `pages` fresh anonymous pages, write one byte to each (at least one
+/// minor fault a page: mmap maps nothing until the first touch), unmap
+/// them. For the tests of the fault counts.
+#[cfg(test)]
+pub(crate) fn touch_fresh_pages(pages: usize) {
+    let page = 4096;
+    let len = pages * page;
+    // SAFETY: a private anonymous mapping, unmapped below.
+    let p = unsafe {
+        libc::mmap(
+            std::ptr::null_mut(),
+            len,
+            libc::PROT_READ | libc::PROT_WRITE,
+            libc::MAP_PRIVATE | libc::MAP_ANONYMOUS,
+            -1,
+            0,
+        )
+    };
+    assert_ne!(p, libc::MAP_FAILED);
+    for i in 0..pages {
+        // SAFETY: inside the mapping.
+        unsafe { std::ptr::write_volatile((p as *mut u8).add(i * page), 1) };
+    }
+    // SAFETY: the mapping made above.
+    unsafe { libc::munmap(p, len) };
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -190,28 +217,9 @@ mod tests {
         // 64 fresh anonymous pages, each touched once: at least one minor
         // fault per page (none before the touch: mmap maps nothing yet).
         const PAGES: usize = 64;
-        let page = 4096;
-        let len = PAGES * page;
-        // SAFETY: a private anonymous mapping, unmapped below.
-        let p = unsafe {
-            libc::mmap(
-                std::ptr::null_mut(),
-                len,
-                libc::PROT_READ | libc::PROT_WRITE,
-                libc::MAP_PRIVATE | libc::MAP_ANONYMOUS,
-                -1,
-                0,
-            )
-        };
-        assert_ne!(p, libc::MAP_FAILED);
         let a = thread_usage();
-        for i in 0..PAGES {
-            // SAFETY: inside the mapping.
-            unsafe { std::ptr::write_volatile((p as *mut u8).add(i * page), 1) };
-        }
+        touch_fresh_pages(PAGES);
         let b = thread_usage();
-        // SAFETY: the mapping made above.
-        unsafe { libc::munmap(p, len) };
         assert_ne!(a, ThreadUsage::UNKNOWN);
         assert!(
             b.minor_faults - a.minor_faults >= PAGES as u64,
