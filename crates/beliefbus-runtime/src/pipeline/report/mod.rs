@@ -54,13 +54,15 @@
 //! per control (belief taken → control published).
 
 mod json;
+mod miss_report;
 mod render;
 
 pub use json::{
-    AccuracyReport, ChainReport, ControlReport, FilterReport, HopJson, HostReport, MissReport,
+    AccuracyReport, ChainReport, ControlReport, FilterReport, HopJson, HostReport,
     ObservationBooks, RecoveryReport, RecoverySummary, RunReport, SharedMemoryReport, StageReport,
     StageSupervision, StreamsReport, SupervisorReport, REPORT_SCHEMA_VERSION,
 };
+pub use miss_report::MissReport;
 
 use super::monitor::Accuracy;
 use crate::ipc::{Hop, Percentiles, StageKind, StageStats};
