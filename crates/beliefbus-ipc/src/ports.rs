@@ -68,16 +68,16 @@ message!(
     |m| m.header()
 );
 // Every observation should be filtered: after a stall of its core the
-// plant catches up by up to 20 periods at once (plant::MAX_BEHIND), and a
-// queue of 32 holds such a burst whole. A stalled filter still never holds
-// back ingest: a full queue drops its oldest, which the filter counts as
-// lost.
+// plant catches up by up to `plant.catch_up_periods` at once, and the
+// filter's queue is sized to hold such a burst whole (at most 256). A
+// stalled filter still never holds back ingest: a full queue drops its
+// oldest, which the filter counts as lost.
 message!(
     Observation,
     "obs",
     Qos {
         history: 0,
-        max_buffer: 64,
+        max_buffer: 256,
         default_buffer: 32,
         max_publishers: 2,
         max_subscribers: 8,

@@ -33,6 +33,9 @@ pub const STEP_WORK_MAX: f64 = 2e9;
 /// Finest plant integration step (s): 10⁶ Euler–Maruyama steps per second
 /// of simulated time is already most of a core.
 pub const MIN_INTEGRATION_DT: f64 = 1e-6;
+/// Longest catch-up burst of the plant (periods): with the burst margin it
+/// fits the sensor and observation channels' largest queue (256).
+pub const MAX_CATCH_UP_PERIODS: u64 = 200;
 /// Highest sensor rate (Hz).
 pub const MAX_SENSOR_RATE_HZ: f64 = 1e5;
 /// Longest run (s): one year.

@@ -185,6 +185,33 @@ pub struct PlantConfig {
     /// Sensor channel id the plant publishes on.
     #[serde(default)]
     pub channel: u32,
+    /// After a stall of the machine, the plant publishes the samples it
+    /// owes back to back, each at its own measurement time, for up to this
+    /// many periods (1 to 200); older ticks are skipped and counted as stale. The
+    /// sensor and observation queues are sized to hold such a burst whole.
+    #[serde(default = "default_catch_up_periods")]
+    pub catch_up_periods: u64,
+}
+
+fn default_catch_up_periods() -> u64 {
+    20
+}
+
+/// Room a burst queue keeps beyond the catch-up burst itself: the samples
+/// that arrive while the stages below drain it.
+const BURST_MARGIN: usize = 32;
+
+impl PlantConfig {
+    /// A subscriber queue on `M`'s channel that holds the plant's largest
+    /// catch-up burst whole (so a stage preempted by the burst loses none
+    /// of it), never shorter than the channel's default and at most its
+    /// limit.
+    pub fn burst_queue<M: crate::ipc::Message>(&self) -> usize {
+        (self.catch_up_periods as usize)
+            .saturating_add(BURST_MARGIN)
+            .max(M::QOS.default_buffer)
+            .min(M::QOS.max_buffer)
+    }
 }
 
 /// `[[ingest.channels]]`: one sensor channel.

@@ -193,6 +193,9 @@ fn values_that_size_memory_work_or_time_are_bounded() {
         ("refine.publish_period_ms=1e300", "refine.publish_period_ms"),
         ("control.belief_queue=0", "control.belief_queue"),
         ("control.belief_queue=257", "control.belief_queue"),
+        ("plant.catch_up_periods=0", "plant.catch_up_periods"),
+        ("plant.catch_up_periods=201", "plant.catch_up_periods"),
+        ("plant.catch_up_periods=-1", "plant.catch_up_periods"),
     ] {
         let e = err(BASE, &[set]);
         assert_eq!(e.key, key, "{set}: {e}");

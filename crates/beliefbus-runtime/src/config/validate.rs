@@ -248,6 +248,16 @@ impl PipelineConfig {
                 ),
             ));
         }
+        if !(1..=limits::MAX_CATCH_UP_PERIODS).contains(&p.catch_up_periods) {
+            return Err(ConfigError::new(
+                "plant.catch_up_periods",
+                format!(
+                    "must be between 1 and {}, got {}",
+                    limits::MAX_CATCH_UP_PERIODS,
+                    p.catch_up_periods
+                ),
+            ));
+        }
         let dynamics = self.dynamics()?;
         let dims = dynamics.dims();
         len_is(

@@ -99,7 +99,7 @@ impl IngestPorts {
     /// Open them on `bus`.
     pub fn open(bus: &Bus, id: StageIdentity, cfg: &PipelineConfig) -> Result<Self, StageError> {
         Ok(Self {
-            sensor: bus.subscriber()?,
+            sensor: bus.subscriber_with(cfg.plant.burst_queue::<SensorSample>(), true)?,
             obs: bus.publisher()?,
             stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,
         })

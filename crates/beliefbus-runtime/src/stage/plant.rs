@@ -90,9 +90,6 @@ impl Reason {
 const REJECT_LOG_PERIOD_NS: u64 = 1_000_000_000;
 /// Controls buffered between two ticks.
 const CONTROL_BUFFER: usize = 16;
-/// A plant this many periods late skips ahead instead of catching up
-/// sample by sample.
-const MAX_BEHIND: u64 = 20;
 
 /// The ports of the plant.
 pub struct PlantPorts {
@@ -184,6 +181,8 @@ pub fn run_resumed(
     let mut gate = PublisherGate::from_env();
     let mut log = RejectLog::new(Reason::ALL.len(), REJECT_LOG_PERIOD_NS);
     let period_ns = (1e9 / cfg.plant.sensor_rate_hz).round().max(1.0) as u64;
+    // Late by more than this: skip ahead instead of catching up.
+    let max_behind_ns = cfg.plant.catch_up_periods.saturating_mul(period_ns);
     let mut pending = [Control::default(); CONTROL_BUFFER];
     let mut goal: Option<[f64; 2]> = None;
     let mut y = [0.0; MAX_OBS];
@@ -238,7 +237,7 @@ pub fn run_resumed(
             }
         };
         let now = clock.now_ns();
-        if at.is_some() && now > t_k + MAX_BEHIND * period_ns {
+        if at.is_some() && now > t_k + max_behind_ns {
             // Far behind a multi-rate plant's sample: move past it
             // unpublished (the controls read at the next sample still
             // take effect from their publish times).
@@ -248,7 +247,7 @@ pub fn run_resumed(
             t_prev = t_k;
             continue;
         }
-        if at.is_none() && now > t_k + MAX_BEHIND * period_ns {
+        if at.is_none() && now > t_k + max_behind_ns {
             // Far behind (e.g. the machine stalled): skip to the present —
             // the sample numbers too, unless a step is a sample.
             let skip = (now - t_k) / period_ns;

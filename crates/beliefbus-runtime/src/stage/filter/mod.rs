@@ -141,7 +141,7 @@ impl FilterPorts {
     /// Open them on `bus`.
     pub fn open(bus: &Bus, id: StageIdentity, cfg: &PipelineConfig) -> Result<Self, StageError> {
         Ok(Self {
-            obs: bus.subscriber()?,
+            obs: bus.subscriber_with(cfg.plant.burst_queue::<Observation>(), true)?,
             control: bus.subscriber_with(1, false)?,
             belief: bus.publisher()?,
             stats: StatsPort::open(bus, id, cfg.run.stats_period_s)?,

@@ -254,6 +254,76 @@ fn after_a_stall_only_a_discrete_plant_keeps_its_numbers_contiguous() {
     assert_eq!(stale(&fin), 50);
 }
 
+/// Within `plant.catch_up_periods` a stalled plant owes every sample: after
+/// the same 51.5-period stall, a window of 60 publishes all 80 numbers,
+/// each at its own measurement time, and counts none stale.
+#[test]
+fn a_stall_within_the_catch_up_window_loses_no_sample() {
+    let cfg = test_config(&["plant.catch_up_periods=60"]);
+    let _c = Cleanup(cfg.run.prefix.clone());
+    let period_ns = 10_000_000;
+    let clock = StallingClock {
+        inner: SimClock::new(1_000_000_000),
+        sleeps: Default::default(),
+        at: 10,
+        stall_ns: 51 * period_ns + period_ns / 2,
+    };
+    let (t, s, fin) = plant_truth_on(&cfg, 80, None, &clock);
+    assert_eq!((t.len(), s.len()), (80, 80));
+    for (k, s) in s.iter().enumerate() {
+        assert_eq!(s.seq, k as u64);
+        assert_eq!(s.t_meas_ns, 1_000_000_000 + (k as u64 + 1) * period_ns);
+    }
+    assert_eq!(fin.dropped_by_reason[DropReason::Stale as usize], 0);
+}
+
+/// Ingest's sensor queue and the filter's observation queue hold the
+/// plant's largest catch-up burst whole: 150 periods published before
+/// either stage reads are all there (the channels' defaults, 64 and 32,
+/// would keep only the newest of them).
+#[test]
+fn the_stage_queues_hold_a_whole_catch_up_burst() {
+    let cfg = test_config(&["plant.catch_up_periods=150"]);
+    let _c = Cleanup(cfg.run.prefix.clone());
+    let bus = Bus::open(&cfg.bus(), "test").unwrap();
+    let ib = Bus::open(&cfg.bus(), "ingest").unwrap();
+    let fb = Bus::open(&cfg.bus(), "filter").unwrap();
+    let ing =
+        ingest::IngestPorts::open(&ib, StageIdentity::plain(StageKind::Ingest), &cfg).unwrap();
+    let fil =
+        filter::FilterPorts::open(&fb, StageIdentity::plain(StageKind::Filter), &cfg).unwrap();
+    let mut sensor = bus.publisher::<SensorSample>().unwrap();
+    let mut obs = bus.publisher::<Observation>().unwrap();
+    for k in 0..150u64 {
+        sensor
+            .publish(&sample(0, k, 1_000_000 * (k + 1), &[5.0, 0.1]))
+            .unwrap();
+        let mut o = Observation::default();
+        o.header.seq = k;
+        obs.publish(&o).unwrap();
+    }
+    let drain = |mut next: Box<dyn FnMut() -> Option<u64> + '_>| {
+        let mut seqs = Vec::new();
+        while let Some(q) = next() {
+            seqs.push(q);
+        }
+        seqs
+    };
+    let want: Vec<u64> = (0..150).collect();
+    assert_eq!(
+        drain(Box::new(|| ing.sensor.receive().unwrap().map(|s| s.seq))),
+        want
+    );
+    assert_eq!(
+        drain(Box::new(|| fil
+            .obs
+            .receive()
+            .unwrap()
+            .map(|o| o.header.seq))),
+        want
+    );
+}
+
 /// A multi-rate plant (the car park: odometry at 40 Hz, laser scans in
 /// between) publishes each channel with its own id, dimension and
 /// numbering at the times it announced, each truth on the sample's channel
