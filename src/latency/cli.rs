@@ -469,6 +469,7 @@ pub fn jitter(a: JitterArgs) -> Result<()> {
         shm_left,
         baseline_host,
         host_stalls: probe::rows(&stalls, &thresholds),
+        host_stall_grid: probe::grid(&stalls),
         warnings,
     };
     print!("{}", report.render());

@@ -5,12 +5,14 @@
 //! one-line warning and a fallback when not permitted), idle-class
 //! spinners that keep the pipeline's cores awake (`keep_warm`), the time
 //! the machine took from each core (`host`: steal, interrupts), a probe of
-//! the stalls the host inflicts on a spinning core (`stall`), and the rules
+//! the stalls the host inflicts on a spinning core (`stall`), whether a set
+//! of events sits on a periodic grid (`grid`), and the rules
 //! for every file a run writes (`files`).
 
 pub mod budget;
 pub mod clock;
 pub mod files;
+pub mod grid;
 pub mod hist;
 pub mod host;
 pub mod keep_warm;

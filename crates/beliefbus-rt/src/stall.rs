@@ -43,6 +43,11 @@ pub const BURST_NS: u64 = 9_000_000;
 pub const REST_NS: u64 = 1_000_000;
 /// Shortest gap recorded as a stall.
 pub const MIN_GAP_NS: u64 = 20_000;
+/// Shortest host stall (charged or steal) whose start time is kept, for
+/// [`crate::grid`]: on this scale the guest's own tick never reaches it.
+pub const GRID_MIN_GAP_NS: u64 = 200_000;
+/// Most start times kept per core (allocated up front).
+pub const STARTS_MAX: usize = 4096;
 
 /// What the guest saw of a stall (module doc).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -111,6 +116,9 @@ pub struct CoreStalls {
     pub spun_ns: u64,
     /// Gap lengths by [`StallKind`] (index = the kind's value).
     pub gaps: [LatencyHist; 3],
+    /// Start times (CLOCK_MONOTONIC, ns) of the first [`STARTS_MAX`]
+    /// charged or steal stalls of at least [`GRID_MIN_GAP_NS`].
+    pub starts: Vec<u64>,
     pub warnings: Vec<String>,
 }
 
@@ -121,6 +129,7 @@ impl CoreStalls {
             fifo: false,
             spun_ns: 0,
             gaps: [LatencyHist::new(), LatencyHist::new(), LatencyHist::new()],
+            starts: Vec::with_capacity(STARTS_MAX),
             warnings: Vec::new(),
         }
     }
@@ -172,6 +181,12 @@ pub fn spin<C: ProbeClock>(clock: &mut C, until_ns: u64, min_gap_ns: u64, out: &
             if g >= min_gap_ns {
                 let kind = classify(g, c.saturating_sub(prev_cpu), sw != prev_sw);
                 out.gaps[kind as usize].record(g);
+                if g >= GRID_MIN_GAP_NS
+                    && kind != StallKind::Switched
+                    && out.starts.len() < STARTS_MAX
+                {
+                    out.starts.push(prev_wall);
+                }
             }
             prev_sw = sw;
         }
@@ -323,6 +338,13 @@ mod tests {
         assert_eq!(out.above(StallKind::Charged, 20_000), 1);
         assert_eq!(out.above(StallKind::Charged, 60_000), 0);
         assert_eq!(out.spun_ns, end - 1_000_000);
+        // Of the stalls of 200 µs and more, the host's (the 800 µs steal)
+        // keeps its start; the switched 300 µs does not.
+        let before = reads
+            .windows(2)
+            .find(|p| p[1].0 - p[0].0 == 800_000)
+            .unwrap();
+        assert_eq!(out.starts, [before[0].0]);
         // The switch count is read at start and after each gap above 1 µs
         // only (4 of them), not on every turn.
         assert_eq!(clock.switch_reads, 5);

@@ -5,6 +5,7 @@
 //! stage's budget on its core.
 
 use crate::latency::pipeline::StageFigures;
+use crate::rt::grid::{alignment, Alignment};
 use crate::rt::stall::{CoreStalls, StallKind};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -87,6 +88,62 @@ pub fn rows(stalls: &[CoreStalls], thresholds_us: &[f64]) -> Vec<StallRow> {
         .collect()
 }
 
+/// Periods the probe's host stalls are tested against (ms): the host's
+/// scheduler tick and CPU-bandwidth period as seen on this VM, and 97 ms,
+/// which means nothing, as the control.
+pub const GRID_PERIODS_MS: [u64; 3] = [10, 100, 97];
+/// Tolerance of the grid test.
+pub const GRID_TOLERANCE_NS: u64 = 50_000;
+/// Pairs of stalls closer than this are left out (a pause of the whole VM
+/// shows on every core at once).
+pub const GRID_MIN_SEPARATION_NS: u64 = 5_000_000;
+
+/// Whether the probe's host stalls (charged or steal, ≥ 200 µs, every core
+/// pooled) sit on a periodic grid ([`crate::rt::grid`]).
+pub fn grid(stalls: &[CoreStalls]) -> Vec<Alignment> {
+    let starts: Vec<u64> = stalls
+        .iter()
+        .flat_map(|c| c.starts.iter().copied())
+        .collect();
+    if starts.len() < 2 {
+        return Vec::new();
+    }
+    GRID_PERIODS_MS
+        .iter()
+        .map(|&p| {
+            alignment(
+                &starts,
+                p * 1_000_000,
+                GRID_TOLERANCE_NS,
+                GRID_MIN_SEPARATION_NS,
+            )
+        })
+        .collect()
+}
+
+/// The grid test's console line (empty without one).
+pub fn render_grid(grid: &[Alignment]) -> String {
+    let Some(first) = grid.first() else {
+        return String::new();
+    };
+    let mut s = format!(
+        "  host stalls ≥ 200 µs, all cores: of {} pairs, a whole number of P apart (± {:.0} µs):",
+        first.pairs, first.tolerance_us
+    );
+    for a in grid {
+        s += &format!(
+            " P = {:.0} ms {} (chance {:.1}, ×{:.1});",
+            a.period_us / 1e3,
+            a.aligned,
+            a.chance,
+            a.ratio()
+        );
+    }
+    s.pop();
+    s += "\n  (far above ×1 at a period: something outside the guest stops it on that grid; 97 ms is the control)\n";
+    s
+}
+
 /// The console lines.
 pub fn render(rows: &[StallRow], stages: Option<&BTreeMap<String, StageFigures>>) -> String {
     let Some(first) = rows.first() else {
@@ -167,6 +224,33 @@ mod tests {
         let charged_ms = (60 + 120 + 700 + 2_000) as f64 / 1e3 * 2.0;
         assert!((r.total_ms_per_min[1] - charged_ms).abs() < 0.01);
         assert!((r.max_us[2] - 6_000.0).abs() < 10.0);
+    }
+
+    #[test]
+    fn the_grid_test_pools_the_cores_and_finds_a_100_ms_grid() {
+        // Stalls on both cores at whole multiples of 100 ms (+ up to 30 µs),
+        // the same instants on both (a pause of the whole VM): the pairs
+        // closer than 5 ms (the two cores' copies) are left out.
+        let mut cores = [CoreStalls::new(0), CoreStalls::new(1)];
+        for k in [3u64, 7, 12, 40, 41, 90, 133, 250] {
+            for (i, c) in cores.iter_mut().enumerate() {
+                c.starts.push(k * 100_000_000 + 10_000 * i as u64);
+            }
+        }
+        let g = grid(&cores);
+        assert_eq!(g.len(), 3);
+        let at = |ms: u64| g.iter().find(|a| a.period_us == ms as f64 * 1e3).unwrap();
+        // 16 stalls: 120 pairs, less the 8 pairs of copies.
+        assert_eq!(at(100).pairs, 112);
+        assert_eq!(at(100).aligned, 112);
+        assert_eq!(at(10).aligned, 112);
+        assert!(at(97).aligned < 20, "{:?}", at(97));
+        let line = render_grid(&g);
+        assert!(
+            line.contains("P = 100 ms 112 (chance 0.1, ×1000.0)"),
+            "{line}"
+        );
+        assert!(grid(&cores[..0]).is_empty() && render_grid(&[]).is_empty());
     }
 
     #[test]

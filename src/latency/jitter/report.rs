@@ -105,6 +105,10 @@ pub struct JitterReport {
     /// The host stall probe, per core (empty: not run).
     #[serde(default)]
     pub host_stalls: Vec<super::probe::StallRow>,
+    /// Whether the probe's stalls sit on a periodic grid, one entry per
+    /// period tested (empty: not run, or fewer than two stalls).
+    #[serde(default)]
+    pub host_stall_grid: Vec<crate::rt::grid::Alignment>,
     pub warnings: Vec<String>,
 }
 
@@ -272,6 +276,7 @@ impl JitterReport {
             );
         }
         s += &super::probe::render(&self.host_stalls, self.pipeline.as_ref().map(|p| &p.stages));
+        s += &super::probe::render_grid(&self.host_stall_grid);
         if let Some(p) = &self.pipeline {
             let a = |k: &str| {
                 p.accuracy[k]
