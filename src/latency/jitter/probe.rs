@@ -132,7 +132,7 @@ pub fn render_grid(grid: &[Alignment]) -> String {
     );
     for a in grid {
         s += &format!(
-            " P = {:.0} ms {} (chance {:.1}, ×{:.1});",
+            " P = {:.0} ms {} (chance {:.2}, ×{:.1});",
             a.period_us / 1e3,
             a.aligned,
             a.chance,
@@ -247,7 +247,7 @@ mod tests {
         assert!(at(97).aligned < 20, "{:?}", at(97));
         let line = render_grid(&g);
         assert!(
-            line.contains("P = 100 ms 112 (chance 0.1, ×1000.0)"),
+            line.contains("P = 100 ms 112 (chance 0.11, ×1000.0)"),
             "{line}"
         );
         assert!(grid(&cores[..0]).is_empty() && render_grid(&[]).is_empty());
