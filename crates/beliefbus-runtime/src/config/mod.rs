@@ -187,8 +187,9 @@ pub struct PlantConfig {
     pub channel: u32,
     /// After a stall of the machine, the plant publishes the samples it
     /// owes back to back, each at its own measurement time, for up to this
-    /// many periods (1 to 200); older ticks are skipped and counted as stale. The
-    /// sensor and observation queues are sized to hold such a burst whole.
+    /// many periods (1 to 200); older ticks are skipped and counted as
+    /// stale. The sensor and observation queues are sized to hold such a
+    /// burst whole.
     #[serde(default = "default_catch_up_periods")]
     pub catch_up_periods: u64,
 }
