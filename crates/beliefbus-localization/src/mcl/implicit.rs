@@ -96,13 +96,7 @@ impl Localizer for ImplicitMcl {
             step,
         } = *s;
         let ms = MotionStep::new(ute, noise);
-        let set = &mut self.set;
-        for ((x, lw), c) in set
-            .x
-            .iter_mut()
-            .zip(set.logw.iter_mut())
-            .zip(set.acc.iter_mut())
-        {
+        for (x, lw, c) in self.set.scan_mut() {
             let prior = ms.prior(x, c, u);
             let beta = x[2];
             *c = Matrix3::zeros();

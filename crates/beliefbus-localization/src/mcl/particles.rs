@@ -76,6 +76,18 @@ impl ParticleSet {
         })
     }
 
+    /// Each particle's pose, log weight and accumulated interval
+    /// covariance, for a scan step to update in place.
+    pub fn scan_mut(
+        &mut self,
+    ) -> impl Iterator<Item = (&mut Pose, &mut f64, &mut Matrix3<f64>)> + '_ {
+        self.x
+            .iter_mut()
+            .zip(self.logw.iter_mut())
+            .zip(self.acc.iter_mut())
+            .map(|((x, lw), c)| (x, lw, c))
+    }
+
     /// Number of particles M.
     pub fn len(&self) -> usize {
         self.x.len()

@@ -59,13 +59,7 @@ impl Localizer for StandardMcl {
             step,
         } = *s;
         let ms = MotionStep::new(ute, noise);
-        let set = &mut self.set;
-        for ((x, lw), c) in set
-            .x
-            .iter_mut()
-            .zip(set.logw.iter_mut())
-            .zip(set.acc.iter_mut())
-        {
+        for (x, lw, c) in self.set.scan_mut() {
             let xi = normal3(rng);
             *x = ms.prior(x, c, u).draw(&xi);
             *c = Matrix3::zeros();
